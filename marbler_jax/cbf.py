@@ -1,0 +1,343 @@
+"""Robotarium barrier certificates (CBF safety filters) as fixed-iteration, batched QP solvers.
+
+``certify = make_barrier(kind, **params)`` returns a :class:`Barrier`; ``certify(u_nom, x)`` gives
+the certified input and ``certify.solve(u_nom, x)`` also returns :class:`CertificateInfo`
+diagnostics. Shapes are robot-major and batched over leading axes:
+
+* SI kinds (``"si"``, ``"si2"``, ``"si_boundary"``): ``x`` = positions ``[..., N, 2]`` [m],
+  ``u`` = SI velocities ``[..., N, 2]`` [m/s].
+* unicycle kinds (``"uni"``, ``"uni2"``, ``"uni_boundary"``): ``x`` = poses ``[..., N, 3]``,
+  ``u`` = (v [m/s], omega [rad/s]) ``[..., N, 2]``. They work on the projection point
+  ``p = (x, y) + d (cos theta, sin theta)`` with the SI certificate at radius ``safety_radius + d``
+  and map back with omega clipped to +-pi, as rps does.
+
+The QP (rps 6bb184e, ``shared/spec/robotarium.md`` section 10) is
+``min ||u - u_hat||^2  s.t.  A u <= b`` where ``u_hat`` is ``u_nom`` with each robot's norm capped
+at ``magnitude_limit``, and for every pair i < j with ``e = x_i - x_j``, ``h = |e|^2 - r^2``::
+
+    -2 e.u_i + 2 e.u_j <= gain * h^3          (gain -> unsafe_barrier_gain when h < 0 for *2 kinds)
+
+``*_boundary`` kinds add, per robot, ``u_y <= 0.4 gain (y_max - r/2 - y)^3``,
+``-u_y <= 0.4 gain (y - y_min - r/2)^3`` and the same for x. The output is not re-clipped.
+
+Solver. The Hessian is the identity, so the dual is a non-negative QP whose coordinate ascent
+(Hildreth's method) has a closed-form step per row: ``dl = max(-l_k, w (a_k.u - b_k) / |a_k|^2)``,
+``u -= a_k dl``. A single violated constraint is solved exactly by one such step. We run a
+*fixed* number of sweeps (so the solver jits and vmaps) with over-relaxation ``w`` (SOR; the
+stiff ``*2`` cases converge several times faster with ``w = 1.5`` than plain Gauss-Seidel) and
+exploit the structure:
+
+* a pair row touches two robots only. The C(N,2) pairs are grouped into N-1 rounds of a
+  round-robin tournament; the pairs of a round are disjoint, so a whole round is updated at once
+  with exactly the Gauss-Seidel result (N-1 vector steps per sweep instead of C(N,2) scalar ones);
+* boundary rows act on one coordinate each and are handled as per-robot boxes in one step;
+* distant pairs have ``b`` far above anything ``A u`` reaches and simply keep ``l = 0``.
+
+The solver never divides by zero: rows with ``e = 0`` (coincident robots) are skipped and reported.
+If the constraints are infeasible (coincident robots, boxes with lo > hi, or conflicting walls)
+the fixed budget still returns finite velocities, and ``CertificateInfo.feasible`` is False.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from marbler_jax import controllers
+from marbler_jax._xp import fori_loop, namespace, result_dtype
+
+SI_KINDS = ("si", "si2", "si_boundary")
+UNI_KINDS = ("uni", "uni2", "uni_boundary")
+KINDS = SI_KINDS + UNI_KINDS
+
+# rps 6bb184e defaults per kind.
+_DEFAULTS: dict[str, dict[str, Any]] = {
+    "si": dict(barrier_gain=100.0, safety_radius=0.17, magnitude_limit=0.2),
+    "si2": dict(barrier_gain=100.0, unsafe_barrier_gain=1e6, safety_radius=0.17, magnitude_limit=0.2),
+    "si_boundary": dict(barrier_gain=100.0, safety_radius=0.17, magnitude_limit=0.2,
+                        boundary_points=(-1.6, 1.6, -1.0, 1.0)),
+    "uni": dict(barrier_gain=100.0, safety_radius=0.12, projection_distance=0.05, magnitude_limit=0.2),
+    "uni2": dict(barrier_gain=500.0, unsafe_barrier_gain=1e6, safety_radius=0.12,
+                 projection_distance=0.05, magnitude_limit=0.2),
+    "uni_boundary": dict(barrier_gain=100.0, safety_radius=0.12, projection_distance=0.05,
+                         magnitude_limit=0.2, boundary_points=(-1.6, 1.6, -1.0, 1.0)),
+}
+
+
+class CertificateInfo(NamedTuple):
+    """Diagnostics of one certification, each ``[...]`` (batch shape).
+
+    Attributes:
+        max_violation: largest constraint violation of the returned SI velocity, measured as a
+            distance in velocity space ``(a.u - b) / |a|`` [m/s] (<= 0 when every row holds).
+        feasible: ``max_violation <= tolerance * (1 + max |u|)`` and no degenerate row
+            (coincident robots that must separate); False means the returned input is the best
+            the fixed budget found for a problem that is infeasible or not yet solved.
+        active: number of rows with a positive multiplier.
+    """
+
+    max_violation: Any
+    feasible: Any
+    active: Any
+
+
+@functools.lru_cache(maxsize=None)
+def round_robin(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs of ``n`` robots grouped into rounds of disjoint pairs (circle method).
+
+    Returns ``(first, second)``, each ``[R, H]``: round ``r`` pairs robot ``first[r, k]`` with
+    ``second[r, k]``. ``R = n' - 1`` rounds of ``H = n'/2`` pairs with ``n' = n + n % 2``; index ``n``
+    is a phantom robot for odd ``n``. The order is the circle method's: keep the players in a row,
+    pair slot ``k`` with slot ``n' - 1 - k``, then rotate slots ``1..n'-1`` right by one, so the solver
+    only ever slices, reverses and rotates -- no gathers in its inner loop.
+    """
+    m = n + n % 2
+    players = list(range(m))
+    firsts, seconds = [], []
+    for _ in range(max(m - 1, 0)):
+        firsts.append(players[: m // 2])
+        seconds.append(players[m // 2:][::-1])
+        players = [players[0], players[-1]] + players[1:-1]
+    shape = (max(m - 1, 0), m // 2)
+    return np.array(firsts, np.int32).reshape(shape), np.array(seconds, np.int32).reshape(shape)
+
+
+def default_iterations(kind: str, n: int) -> int:
+    """Sweeps used when ``iterations`` is not given: enough for the rps tight-QP golden cases."""
+    del kind  # one rule fits every kind on the golden cases (see BENCHMARKS.md)
+    return int(min(max(3 * n, 16), 150))
+
+
+@dataclasses.dataclass(frozen=True)
+class Barrier:
+    """A configured barrier certificate; call it as ``certify(u_nom, x) -> u``.
+
+    Build it with :func:`make_barrier`. All fields are static (hashable), so a ``Barrier`` can be
+    closed over or passed as a static argument to ``jax.jit``.
+    """
+
+    kind: str
+    safety_radius: float
+    barrier_gain: float
+    magnitude_limit: float
+    unsafe_barrier_gain: float | None = None
+    projection_distance: float | None = None
+    boundary_points: tuple[float, float, float, float] | None = None
+    iterations: int | None = None
+    relaxation: float = 1.5
+    tolerance: float = 1e-4
+
+    @property
+    def is_unicycle(self) -> bool:
+        return self.kind in UNI_KINDS
+
+    @property
+    def si_radius(self) -> float:
+        """Safety radius of the SI problem (``safety_radius + projection_distance`` for unicycles)."""
+        return self.safety_radius + (self.projection_distance or 0.0) * self.is_unicycle
+
+    def sweeps(self, n: int) -> int:
+        return self.iterations if self.iterations is not None else default_iterations(self.kind, n)
+
+    def __call__(self, u_nom, x):
+        return self.solve(u_nom, x)[0]
+
+    def solve(self, u_nom, x):
+        """Certify ``u_nom`` at state ``x``; returns ``(u, CertificateInfo)``."""
+        xp = namespace(u_nom, x)
+        dtype = result_dtype(xp, u_nom, x)
+        u_nom = xp.asarray(u_nom, dtype=dtype)
+        x = xp.asarray(x, dtype=dtype)
+        state_dim = 3 if self.is_unicycle else 2
+        if x.shape[-1] != state_dim or u_nom.shape[-1] != 2 or x.shape[-2] != u_nom.shape[-2]:
+            raise ValueError(
+                f"barrier {self.kind!r} expects x [..., N, {state_dim}] and u_nom [..., N, 2]; "
+                f"got x {tuple(x.shape)} and u_nom {tuple(u_nom.shape)}"
+            )
+        if not self.is_unicycle:
+            return solve_si(self, u_nom, x)
+        d = self.projection_distance
+        points = controllers.uni_to_si_states(x, d)
+        dxi = controllers.uni_to_si_dynamics(u_nom, x, d)
+        dxi, info = solve_si(self, dxi, points)
+        return controllers.si_to_uni_mapping(dxi, x, d), info
+
+
+def make_barrier(kind: str = "si2", **params) -> Barrier:
+    """Create a barrier certificate ``certify(u_nom, x) -> u`` (see module docstring).
+
+    Args:
+        kind: one of ``"si"``, ``"si2"``, ``"si_boundary"``, ``"uni"``, ``"uni2"``, ``"uni_boundary"``.
+        safety_radius, barrier_gain, unsafe_barrier_gain, magnitude_limit, projection_distance,
+            boundary_points: as in rps (defaults per kind, rps 6bb184e); ``boundary_points`` is
+            ``(x_min, x_max, y_min, y_max)``.
+        iterations: solver sweeps (static); default grows with N (:func:`default_iterations`).
+        relaxation: over-relaxation factor in (0, 2) of the coordinate-ascent sweeps.
+        tolerance: relative feasibility tolerance used by ``CertificateInfo.feasible``.
+    """
+    if kind not in _DEFAULTS:
+        raise ValueError(f"unknown barrier kind {kind!r}; choose one of {list(KINDS)}")
+    allowed = set(_DEFAULTS[kind]) | {"iterations", "relaxation", "tolerance"}
+    unknown = sorted(set(params) - allowed)
+    if unknown:
+        raise ValueError(
+            f"barrier {kind!r} does not take {unknown}; valid keywords are {sorted(allowed)}"
+        )
+    cfg = {**_DEFAULTS[kind], **params}
+    gain = float(cfg["barrier_gain"])
+    radius = float(cfg["safety_radius"])
+    limit = float(cfg["magnitude_limit"])
+    if not gain > 0:
+        raise ValueError(f"barrier_gain must be > 0, got {gain}")
+    min_radius = 0.12 if kind in SI_KINDS else 0.0
+    if not radius >= min_radius or not math.isfinite(radius):
+        raise ValueError(f"safety_radius must be >= {min_radius} for {kind!r}, got {radius}")
+    if not 0 < limit <= 0.2:
+        raise ValueError(f"magnitude_limit must be in (0, 0.2] (the robots' top speed), got {limit}")
+    unsafe = cfg.get("unsafe_barrier_gain")
+    if unsafe is not None and not float(unsafe) > 0:
+        raise ValueError(f"unsafe_barrier_gain must be > 0, got {unsafe}")
+    proj = cfg.get("projection_distance")
+    if proj is not None and not float(proj) > 0:
+        raise ValueError(f"projection_distance must be > 0, got {proj}")
+    bounds = cfg.get("boundary_points")
+    if bounds is not None:
+        bounds = tuple(float(b) for b in bounds)
+        if len(bounds) != 4 or not (bounds[0] < bounds[1] and bounds[2] < bounds[3]):
+            raise ValueError(f"boundary_points must be (x_min, x_max, y_min, y_max) with min < max, got {bounds}")
+    iterations = cfg.get("iterations")
+    if iterations is not None and (int(iterations) != iterations or iterations < 0):
+        raise ValueError(f"iterations must be a non-negative integer, got {iterations}")
+    relaxation = float(cfg.get("relaxation", 1.5))
+    if not 0 < relaxation < 2:
+        raise ValueError(f"relaxation must be in (0, 2), got {relaxation}")
+    return Barrier(
+        kind=kind, safety_radius=radius, barrier_gain=gain, magnitude_limit=limit,
+        unsafe_barrier_gain=None if unsafe is None else float(unsafe),
+        projection_distance=None if proj is None else float(proj), boundary_points=bounds,
+        iterations=None if iterations is None else int(iterations), relaxation=relaxation,
+        tolerance=float(cfg.get("tolerance", 1e-4)),
+    )
+
+
+def _pair_rows(barrier: Barrier, positions, xp):
+    """Pair rows in round layout: ``e [..., R, H, 2]``, ``b``, ``|a|^2`` and ``valid`` ``[..., R, H]``.
+
+    Row (r, k) reads ``-2 e.u_first + 2 e.u_second <= b`` with ``e = x_first - x_second``.
+    """
+    n = positions.shape[-2]
+    first, second = round_robin(n)
+    if n % 2:  # phantom robot: its rows are masked out
+        pad = xp.zeros(positions.shape[:-2] + (1, 2), dtype=positions.dtype)
+        positions = xp.concatenate([positions, pad], axis=-2)
+    e = positions[..., first, :] - positions[..., second, :]
+    valid = (first < n) & (second < n)
+    e = xp.where(valid[..., None], e, xp.zeros_like(e))
+    h = xp.sum(e * e, axis=-1) - barrier.si_radius ** 2
+    gain = barrier.barrier_gain
+    if barrier.unsafe_barrier_gain is not None:
+        gain = xp.where(h < 0, barrier.unsafe_barrier_gain, gain)
+    b = xp.where(valid, gain * h ** 3, xp.ones_like(h))
+    a2 = 8 * xp.sum(e * e, axis=-1)
+    return e, b, a2, valid
+
+
+def _boxes(barrier: Barrier, positions, xp):
+    """Boundary rows as per-robot boxes ``lo <= u <= hi`` (``[..., N, 2]`` each)."""
+    x_min, x_max, y_min, y_max = barrier.boundary_points
+    half = barrier.si_radius / 2
+    g = 0.4 * barrier.barrier_gain
+    hi = g * (xp.asarray([x_max, y_max], dtype=positions.dtype) - half - positions) ** 3
+    lo = -g * (positions - xp.asarray([x_min, y_min], dtype=positions.dtype) - half) ** 3
+    return lo, hi
+
+
+def solve_si(barrier: Barrier, u_nom, positions):
+    """The SI certificate QP for ``positions [..., N, 2]``; returns ``(u [..., N, 2], info)``."""
+    xp = namespace(u_nom, positions)
+    n = positions.shape[-2]
+    u_hat = controllers.cap_norm(u_nom, barrier.magnitude_limit)
+    batch = u_hat.shape[:-2]
+    if n == 0:
+        zero = xp.zeros(batch, dtype=u_hat.dtype)
+        return u_hat, CertificateInfo(zero, zero == 0, zero.astype(xp.int32))
+    first, second = round_robin(n)
+    rounds, half = first.shape
+    m = n + n % 2
+    e, b, a2, valid = _pair_rows(barrier, positions, xp)
+    usable = a2 > 0
+    inv_a2 = xp.where(usable, 1 / xp.where(usable, a2, 1), 0)
+    ex, ey = 2 * e[..., 0], 2 * e[..., 1]
+    boxed = barrier.boundary_points is not None
+    lo, hi = _boxes(barrier, positions, xp) if boxed else (None, None)
+    omega = barrier.relaxation
+
+    def rotate(v):  # slots 1..m-1 right by one (circle method)
+        return xp.concatenate([v[..., :1], v[..., -1:], v[..., 1:-1]], axis=-1)
+
+    def sweep(i, carry):
+        ux, uy, lam, lam_lo, lam_hi = carry
+        # The first sweep is plain Gauss-Seidel: it solves single-active-constraint problems exactly.
+        w = xp.where(i == 0, 1.0, omega) if xp is not np else (1.0 if i == 0 else omega)
+        lam = list(lam)
+        for r in range(rounds):
+            ax, bx = ux[..., :half], ux[..., half:][..., ::-1]
+            ay, by = uy[..., :half], uy[..., half:][..., ::-1]
+            exr, eyr = ex[..., r, :], ey[..., r, :]
+            viol = exr * (bx - ax) + eyr * (by - ay) - b[..., r, :]
+            step = xp.maximum(-lam[r], w * viol * inv_a2[..., r, :])
+            lam[r] = lam[r] + step
+            px, py = exr * step, eyr * step
+            ux = rotate(xp.concatenate([ax + px, (bx - px)[..., ::-1]], axis=-1))
+            uy = rotate(xp.concatenate([ay + py, (by - py)[..., ::-1]], axis=-1))
+        if boxed:
+            u = xp.stack([ux[..., :n], uy[..., :n]], axis=-1)
+            step_hi = xp.maximum(-lam_hi, w * (u - hi))
+            lam_hi = lam_hi + step_hi
+            u = u - step_hi
+            step_lo = xp.maximum(-lam_lo, w * (lo - u))
+            lam_lo = lam_lo + step_lo
+            u = u + step_lo
+            ux = xp.concatenate([u[..., 0], ux[..., n:]], axis=-1)
+            uy = xp.concatenate([u[..., 1], uy[..., n:]], axis=-1)
+        return ux, uy, tuple(lam), lam_lo, lam_hi
+
+    padded = xp.concatenate([u_hat, xp.zeros(batch + (m - n, 2), dtype=u_hat.dtype)], axis=-2)
+    lam0 = tuple(xp.zeros(batch + (half,), dtype=u_hat.dtype) for _ in range(rounds))
+    box0 = xp.zeros(u_hat.shape, dtype=u_hat.dtype)
+    carry = (padded[..., 0], padded[..., 1], lam0, box0, box0)
+    ux, uy, lam, lam_lo, lam_hi = fori_loop(xp, 0, barrier.sweeps(n), sweep, carry)
+    # (m - 1) rotations per sweep bring the slots back to robot order.
+    u = xp.stack([ux[..., :n], uy[..., :n]], axis=-1)
+    lam = xp.stack(lam, axis=-2) if rounds else xp.zeros(b.shape, dtype=u.dtype)
+    return u, _diagnostics(barrier, u, e, b, a2, valid, lam, lo, hi, lam_lo, lam_hi, xp)
+
+
+def _diagnostics(barrier, u, e, b, a2, valid, lam, lo, hi, lam_lo, lam_hi, xp):
+    """Violation of every row at the returned ``u`` (not only the rows the solver touched)."""
+    n = u.shape[-2]
+    first, second = round_robin(n)
+    batch = u.shape[:-2]
+    padded = xp.concatenate([u, xp.zeros(batch + (first.size and (n % 2), 2), dtype=u.dtype)], axis=-2)
+    gap = 2 * xp.sum(e * (padded[..., second, :] - padded[..., first, :]), axis=-1) - b
+    usable = a2 > 0
+    row_norm = xp.sqrt(xp.where(usable, a2, 1))
+    pair_viol = xp.where(usable, gap / row_norm, xp.where(valid & (b < 0), -b, 0))
+    flat = batch + (-1,)
+    worst = xp.max(pair_viol.reshape(flat), axis=-1) if first.size else xp.zeros(batch, u.dtype)
+    active = xp.sum((lam > 0).reshape(flat), axis=-1) if first.size else xp.zeros(batch, xp.int32)
+    if lo is not None:
+        box_viol = xp.maximum(u - hi, lo - u)
+        worst = xp.maximum(worst, xp.max(box_viol.reshape(flat), axis=-1))
+        active = active + xp.sum(((lam_lo > 0) | (lam_hi > 0)).reshape(flat), axis=-1)
+    scale = 1 + xp.max(xp.abs(u).reshape(flat), axis=-1)
+    degenerate = xp.any((valid & ~usable & (b < 0)).reshape(flat), axis=-1) if first.size else worst < -1
+    feasible = (worst <= barrier.tolerance * scale) & ~degenerate
+    return CertificateInfo(worst, feasible, active)
+
+
+__all__ = ["make_barrier", "Barrier", "CertificateInfo", "KINDS", "SI_KINDS", "UNI_KINDS",
+           "round_robin", "default_iterations", "solve_si"]

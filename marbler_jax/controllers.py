@@ -1,0 +1,129 @@
+"""Goal-to-velocity controllers and SI <-> unicycle maps (rps 6bb184e semantics).
+
+Shapes are robot-major: poses ``[..., N, 3]``, SI points/velocities ``[..., N, 2]``, unicycle
+velocities ``[..., N, 2]`` = (v, omega). Works on numpy and JAX arrays alike.
+
+MARBLER's pipeline (:func:`marbler_velocities`): project each pose forward by 0.05 m, drive the
+*projected point* to its goal with the SI position controller, certify with an SI barrier, and
+map back with :func:`si_to_uni_mapping` (omega clipped to +-pi).
+"""
+from __future__ import annotations
+
+import math
+
+from marbler_jax._xp import namespace
+
+
+def _unit(theta, xp):
+    return xp.cos(theta), xp.sin(theta)
+
+
+def uni_to_si_states(poses, projection_distance: float = 0.05):
+    """Projection point ``p = (x, y) + d (cos theta, sin theta)``: ``[..., N, 3] -> [..., N, 2]``."""
+    xp = namespace(poses)
+    c, s = _unit(poses[..., 2], xp)
+    return poses[..., :2] + projection_distance * xp.stack([c, s], axis=-1)
+
+
+def si_to_uni_mapping(dxi, poses, projection_distance: float = 0.05,
+                      angular_velocity_limit: float = math.pi):
+    """SI velocity of the projection point -> (v, omega), omega clipped to +-limit.
+
+    ``v = c dx + s dy``, ``omega = (-s dx + c dy) / d`` (rps ``create_si_to_uni_mapping``).
+    """
+    xp = namespace(dxi, poses)
+    c, s = _unit(poses[..., 2], xp)
+    dx, dy = dxi[..., 0], dxi[..., 1]
+    v = c * dx + s * dy
+    w = (-s * dx + c * dy) / projection_distance
+    w = xp.clip(w, -angular_velocity_limit, angular_velocity_limit)
+    return xp.stack([v, w], axis=-1)
+
+
+def uni_to_si_dynamics(dxu, poses, projection_distance: float = 0.05):
+    """(v, omega) -> velocity of the projection point (rps ``create_uni_to_si_dynamics``)."""
+    xp = namespace(dxu, poses)
+    c, s = _unit(poses[..., 2], xp)
+    v, w = dxu[..., 0], dxu[..., 1]
+    d = projection_distance
+    return xp.stack([c * v - d * s * w, s * v + d * c * w], axis=-1)
+
+
+def si_to_uni_dynamics(dxi, poses, linear_velocity_gain: float = 1.0,
+                       angular_velocity_limit: float = math.pi):
+    """SI velocity -> (v, omega) by the atan2 law (rps ``create_si_to_uni_dynamics``).
+
+    ``v = k (c dx + s dy)``, ``omega = limit * atan2(-s dx + c dy, v) / (pi / 2)``; no clipping.
+    """
+    xp = namespace(dxi, poses)
+    c, s = _unit(poses[..., 2], xp)
+    dx, dy = dxi[..., 0], dxi[..., 1]
+    v = linear_velocity_gain * (c * dx + s * dy)
+    w = angular_velocity_limit * xp.arctan2(-s * dx + c * dy, v) / (math.pi / 2)
+    return xp.stack([v, w], axis=-1)
+
+
+def si_position_controller(xi, goals, x_velocity_gain: float = 1.0, y_velocity_gain: float = 1.0,
+                           velocity_magnitude_limit: float = 0.15):
+    """Proportional SI controller ``diag(kx, ky) (goal - xi)``, norms capped at the limit."""
+    xp = namespace(xi, goals)
+    gains = xp.asarray([x_velocity_gain, y_velocity_gain], dtype=xp.result_type(xi, goals))
+    dxi = gains * (goals[..., :2] - xi)
+    return cap_norm(dxi, velocity_magnitude_limit)
+
+
+def cap_norm(vectors, limit: float):
+    """Rescale rows of ``vectors [..., 2]`` whose norm exceeds ``limit`` to norm ``limit``."""
+    xp = namespace(vectors)
+    norm = xp.sqrt(xp.sum(vectors * vectors, axis=-1, keepdims=True))
+    scale = xp.where(norm > limit, limit / xp.where(norm > limit, norm, 1), 1)
+    return vectors * scale
+
+
+def clf_unicycle_position_controller(poses, goals, linear_velocity_gain: float = 0.8,
+                                     angular_velocity_gain: float = 3.0):
+    """CLF position controller on the robot centre (no saturation, as in rps)."""
+    xp = namespace(poses, goals)
+    ex = goals[..., 0] - poses[..., 0]
+    ey = goals[..., 1] - poses[..., 1]
+    rho = xp.sqrt(ex * ex + ey * ey)
+    heading = xp.arctan2(ey, ex) - poses[..., 2]
+    return xp.stack([linear_velocity_gain * rho * xp.cos(heading),
+                     angular_velocity_gain * rho * xp.sin(heading)], axis=-1)
+
+
+def clf_unicycle_pose_controller(poses, goals, approach_angle_gain: float = 1.0,
+                                 desired_angle_gain: float = 2.7, rotation_error_gain: float = 1.0):
+    """CLF pose controller (rps ``create_clf_unicycle_pose_controller``); goals ``[..., N, 3]``.
+
+    Deviation from rps: at alpha == 0 rps divides by zero and returns NaN; we use the limit
+    ``cos(alpha) sin(alpha) / alpha -> 1``.
+    """
+    xp = namespace(poses, goals)
+    c, s = xp.cos(goals[..., 2]), xp.sin(goals[..., 2])
+    dx = goals[..., 0] - poses[..., 0]
+    dy = goals[..., 1] - poses[..., 1]
+    egx = c * dx + s * dy
+    egy = -s * dx + c * dy
+    e = xp.sqrt(egx * egx + egy * egy)
+    beta = xp.arctan2(egy, egx)
+    alpha = beta - (poses[..., 2] - goals[..., 2])
+    alpha = xp.arctan2(xp.sin(alpha), xp.cos(alpha))
+    tiny = xp.abs(alpha) < 1e-9
+    ratio = xp.where(tiny, 1.0, xp.cos(alpha) * xp.sin(alpha) / xp.where(tiny, 1.0, alpha))
+    v = approach_angle_gain * e * xp.cos(alpha)
+    w = desired_angle_gain * alpha + approach_angle_gain * ratio * (alpha + rotation_error_gain * beta)
+    return xp.stack([v, w], axis=-1)
+
+
+def marbler_velocities(poses, goals, barrier=None, projection_distance: float = 0.05):
+    """MARBLER's ``Controller.set_velocities``: goals ``[..., N, 2|3]`` -> (v, omega) ``[..., N, 2]``.
+
+    ``barrier`` is an SI certificate ``(dxi, xi) -> dxi`` (e.g. ``cbf.make_barrier("si2",
+    safety_radius=0.2)``) or ``None`` for no barrier.
+    """
+    xi = uni_to_si_states(poses, projection_distance)
+    dxi = si_position_controller(xi, goals)
+    if barrier is not None:
+        dxi = barrier(dxi, xi)
+    return si_to_uni_mapping(dxi, poses, projection_distance)

@@ -1,0 +1,279 @@
+"""Robotarium robot physics: unicycle kinematics, actuator limits, arena checks.
+
+Conventions (robot-major, unlike rps's ``3 x N``):
+
+* ``poses``: ``[..., N, 3]`` = (x [m], y [m], theta [rad] in (-pi, pi]).
+* unicycle ``velocities``: ``[..., N, 2]`` = (v [m/s], omega [rad/s]).
+* wheel speeds: ``[..., N, 2]`` = (left, right) [rad/s].
+
+Every function is pure, batched over leading axes and works on numpy *or* JAX arrays (the
+namespace follows the inputs, see :mod:`marbler_jax._xp`), so the numpy-only Robotarium bundle
+runs the same code as training.
+
+Simulator versions (see ``shared/spec/robotarium.md``):
+
+* ``"marbler"`` -- rps commit 6bb184e, the version MARBLER pins. ``set_velocities`` clips v to
+  +-0.2 m/s and omega to +-3.6364 rad/s *independently*; there is no wheel clip.
+* ``"rps2024"`` -- rps 5ec16db / 1fb9dfe (last release of the old API, used by JaxRobotarium's
+  deployment). ``step`` clips each *wheel* to +-12.5 rad/s with base length 0.105.
+* ``"robotarium"`` -- rps v2 (b23069e, today's Robotarium): per-wheel clip at 12.5 rad/s with base
+  length 0.11. The default everywhere.
+
+Integration is forward Euler with the pre-step heading, then theta is wrapped with
+``atan2(sin, cos)``, exactly as rps does. Validation (collisions, boundary) is a separate pure
+function; as in rps it never alters the motion.
+"""
+from __future__ import annotations
+
+import dataclasses
+import operator
+from typing import Literal
+
+from marbler_jax._xp import namespace, result_dtype
+
+ThresholdMode = Literal["components", "wheels"]
+
+
+@dataclasses.dataclass(frozen=True)
+class RobotariumParams:
+    """Constants of one Robotarium simulator version (hashable; a static pytree under JAX).
+
+    Attributes:
+        dt: simulator tick [s].
+        wheel_radius: r [m].
+        base_length: axle length L [m] used in uni <-> wheel conversions.
+        robot_diameter: body diameter [m]; only enters ``max_angular_velocity``.
+        max_linear_velocity: |v| limit [m/s] (``"components"`` thresholding).
+        max_angular_velocity: |omega| limit [rad/s] (``"components"`` thresholding).
+        max_wheel_velocity: |wheel| limit [rad/s] (``"wheels"`` thresholding).
+        threshold_mode: ``"components"`` (clip v and omega separately, rps 6bb184e) or
+            ``"wheels"`` (clip each wheel, later rps versions).
+        arena: (x_min, x_max, y_min, y_max) [m]; a centre strictly outside is out of bounds.
+        collision_offset: forward shift of the collision-test centre [m].
+        collision_diameter: two shifted centres at distance <= this collide [m].
+        max_robots: largest team the simulator accepts.
+    """
+
+    dt: float = 0.033
+    wheel_radius: float = 0.016
+    base_length: float = 0.11
+    robot_diameter: float = 0.11
+    max_linear_velocity: float = 0.2
+    max_angular_velocity: float = 2 * (0.016 / 0.11) * (0.2 / 0.016)
+    max_wheel_velocity: float = 12.5
+    threshold_mode: ThresholdMode = "wheels"
+    arena: tuple[float, float, float, float] = (-1.6, 1.6, -1.0, 1.0)
+    collision_offset: float = 0.025
+    collision_diameter: float = 0.135
+    max_robots: int = 50
+
+    def __post_init__(self):
+        if self.threshold_mode not in ("components", "wheels"):
+            raise ValueError(
+                f"threshold_mode={self.threshold_mode!r} is not supported; "
+                "use 'components' or 'wheels'"
+            )
+        for name in ("dt", "wheel_radius", "base_length", "max_linear_velocity",
+                     "max_angular_velocity", "max_wheel_velocity"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
+        x_min, x_max, y_min, y_max = self.arena
+        if not (x_min < x_max and y_min < y_max):
+            raise ValueError(f"arena must be (x_min, x_max, y_min, y_max) with min < max, got {self.arena}")
+
+    def replace(self, **changes) -> "RobotariumParams":
+        return dataclasses.replace(self, **changes)
+
+
+PRESETS: dict[str, RobotariumParams] = {
+    "marbler": RobotariumParams(base_length=0.105, threshold_mode="components"),
+    "rps2024": RobotariumParams(base_length=0.105, threshold_mode="wheels"),
+    "robotarium": RobotariumParams(base_length=0.11, threshold_mode="wheels"),
+}
+DEFAULT_PRESET = "robotarium"
+
+
+def get_params(preset: str | RobotariumParams = DEFAULT_PRESET) -> RobotariumParams:
+    """Look up a preset by name (``RobotariumParams`` pass through)."""
+    if isinstance(preset, RobotariumParams):
+        return preset
+    try:
+        return PRESETS[preset]
+    except (KeyError, TypeError):
+        raise ValueError(
+            f"unknown physics preset {preset!r}; choose one of {sorted(PRESETS)}"
+        ) from None
+
+
+def uni_to_diff(params: RobotariumParams, velocities):
+    """Unicycle (v, omega) ``[..., N, 2]`` -> wheel speeds (left, right) ``[..., N, 2]`` [rad/s]."""
+    xp = namespace(velocities)
+    v, w = velocities[..., 0], velocities[..., 1]
+    r, length = params.wheel_radius, params.base_length
+    left = (2 * v - length * w) / (2 * r)
+    right = (2 * v + length * w) / (2 * r)
+    return xp.stack([left, right], axis=-1)
+
+
+def diff_to_uni(params: RobotariumParams, wheels):
+    """Wheel speeds (left, right) ``[..., N, 2]`` -> unicycle (v, omega) ``[..., N, 2]``."""
+    xp = namespace(wheels)
+    left, right = wheels[..., 0], wheels[..., 1]
+    r, length = params.wheel_radius, params.base_length
+    return xp.stack([r / 2 * (left + right), r / length * (right - left)], axis=-1)
+
+
+def threshold(params: RobotariumParams, velocities):
+    """Apply the simulator's actuator limits to (v, omega) ``[..., N, 2]``.
+
+    ``"components"``: clip v to +-max_linear_velocity and omega to +-max_angular_velocity
+    independently. ``"wheels"``: clip each wheel speed to +-max_wheel_velocity (sign
+    preserving, not a proportional scaling -- curvature is not kept), then map back.
+    """
+    xp = namespace(velocities)
+    if params.threshold_mode == "components":
+        v = xp.clip(velocities[..., 0], -params.max_linear_velocity, params.max_linear_velocity)
+        w = xp.clip(velocities[..., 1], -params.max_angular_velocity, params.max_angular_velocity)
+        return xp.stack([v, w], axis=-1)
+    wheels = uni_to_diff(params, velocities)
+    wheels = xp.clip(wheels, -params.max_wheel_velocity, params.max_wheel_velocity)
+    return diff_to_uni(params, wheels)
+
+
+def wrap_angle(theta):
+    """Wrap angles to (-pi, pi] the way rps does: ``atan2(sin, cos)``."""
+    xp = namespace(theta)
+    return xp.arctan2(xp.sin(theta), xp.cos(theta))
+
+
+def integrate(params: RobotariumParams, poses, velocities, ticks: int = 1):
+    """Advance ``poses [..., N, 3]`` by ``ticks`` simulator ticks holding ``velocities [..., N, 2]``.
+
+    The command is thresholded once (as the preset does; thresholding is idempotent, so
+    holding it is the same as re-thresholding every tick). Each tick is forward Euler with the
+    pre-step heading followed by the atan2 wrap. For ``ticks > 1`` the heading advances by the
+    constant angle ``delta = dt * omega`` per tick, so the Euler sum has the closed form
+    ``sum_k cos(theta + k delta) = sin(T delta / 2) / sin(delta / 2) * cos(theta + (T-1) delta / 2)``
+    -- one trig evaluation regardless of ``ticks`` (agrees with the tick loop to rounding).
+
+    Args:
+        params: simulator constants (``PRESETS[...]``).
+        poses: ``[..., N, 3]`` current poses.
+        velocities: ``[..., N, 2]`` commanded (v, omega), before limits.
+        ticks: static number of ticks (>= 0).
+
+    Returns:
+        ``[..., N, 3]`` poses after ``ticks`` ticks, theta in (-pi, pi].
+    """
+    ticks = int(ticks)
+    if ticks < 0:
+        raise ValueError(f"ticks must be >= 0, got {ticks}")
+    xp = namespace(poses, velocities)
+    dtype = result_dtype(xp, poses, velocities)
+    poses = xp.asarray(poses, dtype=dtype)
+    if ticks == 0:
+        return poses
+    vel = threshold(params, xp.asarray(velocities, dtype=dtype))
+    x, y, theta = poses[..., 0], poses[..., 1], poses[..., 2]
+    v, w = vel[..., 0], vel[..., 1]
+    dt = params.dt
+    if ticks == 1:
+        step = dt * v
+        return xp.stack(
+            [x + step * xp.cos(theta), y + step * xp.sin(theta), wrap_angle(theta + dt * w)],
+            axis=-1,
+        )
+    delta = dt * w
+    half = delta / 2
+    small = xp.abs(half) < 1e-6
+    safe_half = xp.where(small, xp.ones_like(half), half)
+    # sin(T h)/sin(h); series T (1 - (T^2 - 1) h^2 / 6) where h is tiny (avoids 0/0).
+    gain = xp.where(
+        small,
+        ticks * (1 - (ticks * ticks - 1) * half * half / 6),
+        xp.sin(ticks * safe_half) / xp.sin(safe_half),
+    )
+    mid = theta + (ticks - 1) * half
+    travel = dt * v * gain
+    return xp.stack(
+        [x + travel * xp.cos(mid), y + travel * xp.sin(mid), wrap_angle(theta + ticks * delta)],
+        axis=-1,
+    )
+
+
+def collision_centres(params: RobotariumParams, poses):
+    """Centres used by the collision test: positions shifted forward by ``collision_offset``."""
+    xp = namespace(poses)
+    theta = poses[..., 2]
+    offset = params.collision_offset
+    return poses[..., :2] + offset * xp.stack([xp.cos(theta), xp.sin(theta)], axis=-1)
+
+
+def pair_distances(points):
+    """Pairwise distances ``[..., N, N]`` of ``points [..., N, 2]`` (diagonal = +inf)."""
+    xp = namespace(points)
+    diff = points[..., :, None, :] - points[..., None, :, :]
+    dist = xp.sqrt(xp.sum(diff * diff, axis=-1))
+    n = points.shape[-2]
+    eye = xp.eye(n, dtype=bool)
+    return xp.where(eye, xp.asarray(xp.inf, dtype=dist.dtype), dist)
+
+
+def collisions(params: RobotariumParams, poses):
+    """Per-robot collision flags ``[..., N]`` (bool), as rps counts them.
+
+    Robot i collides when some other robot's shifted centre lies within
+    ``collision_diameter`` (``<=``) of its own shifted centre.
+    """
+    xp = namespace(poses)
+    dist = pair_distances(collision_centres(params, poses))
+    return xp.any(dist <= params.collision_diameter, axis=-1)
+
+
+def collision_pairs(params: RobotariumParams, poses):
+    """Number of colliding unordered pairs ``[...]`` (rps adds 2 per pair to its error dict)."""
+    xp = namespace(poses)
+    dist = pair_distances(collision_centres(params, poses))
+    return xp.sum(dist <= params.collision_diameter, axis=(-1, -2)) // 2
+
+
+def out_of_bounds(params: RobotariumParams, poses):
+    """Per-robot boundary flags ``[..., N]``: centre strictly outside the arena (no margin)."""
+    x_min, x_max, y_min, y_max = params.arena
+    x, y = poses[..., 0], poses[..., 1]
+    return (x < x_min) | (x > x_max) | (y < y_min) | (y > y_max)
+
+
+def actuator_violations(params: RobotariumParams, velocities):
+    """Per-robot flags ``[..., N]``: some wheel of the *un-thresholded* command exceeds its limit."""
+    xp = namespace(velocities)
+    wheels = uni_to_diff(params, velocities)
+    return xp.any(xp.abs(wheels) > params.max_wheel_velocity, axis=-1)
+
+
+def check_num_robots(params: RobotariumParams, num_robots: int) -> int:
+    """Validate a team size against the simulator's limit; returns it as int."""
+    try:
+        n = operator.index(num_robots)
+    except TypeError:
+        raise TypeError(f"number of robots must be an integer, got {num_robots!r}") from None
+    if not 1 <= n <= params.max_robots:
+        raise ValueError(
+            f"number of robots must be in [1, {params.max_robots}] for the Robotarium simulator, got {n}"
+        )
+    return n
+
+
+def max_angular_velocity(params: RobotariumParams) -> float:
+    """Largest |omega| reachable: the component limit, or a pure spin at the wheel limit."""
+    if params.threshold_mode == "components":
+        return params.max_angular_velocity
+    return 2 * params.wheel_radius * params.max_wheel_velocity / params.base_length
+
+
+__all__ = [
+    "RobotariumParams", "PRESETS", "DEFAULT_PRESET", "get_params", "uni_to_diff", "diff_to_uni",
+    "threshold", "wrap_angle", "integrate", "collision_centres", "pair_distances", "collisions",
+    "collision_pairs", "out_of_bounds", "actuator_violations", "check_num_robots",
+    "max_angular_velocity",
+]

@@ -1,0 +1,73 @@
+"""Shared fixtures: golden traces are read from ``../shared/golden`` (never copied here)."""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+GOLDEN = Path(os.environ.get("MARBLER_JAX_GOLDEN", Path(__file__).resolve().parents[2] / "shared" / "golden"))
+
+
+def golden_path(name: str) -> Path:
+    path = GOLDEN / name
+    if not GOLDEN.is_dir():
+        pytest.skip(f"golden folder {GOLDEN} is absent")
+    if not path.exists():
+        raise FileNotFoundError(f"golden file {path} is missing although {GOLDEN} exists")
+    return path
+
+
+class Golden:
+    """A golden ``.npz`` file with per-N views: ``g[N]['poses0']`` is ``N{N}_poses0``."""
+
+    def __init__(self, name: str):
+        self.data = dict(np.load(golden_path(name)))
+        self.meta = json.loads(str(self.data["meta"]))
+
+    def __getitem__(self, n: int) -> dict[str, np.ndarray]:
+        prefix = f"N{n}_"
+        return {k[len(prefix):]: v for k, v in self.data.items() if k.startswith(prefix)}
+
+
+def robot_major(a: np.ndarray) -> np.ndarray:
+    """rps ``(..., C, N)`` -> ours ``(..., N, C)``."""
+    return np.swapaxes(a, -1, -2)
+
+
+def angle_diff(a, b):
+    d = np.asarray(a) - np.asarray(b)
+    return np.abs(np.arctan2(np.sin(d), np.cos(d)))
+
+
+@pytest.fixture(scope="session")
+def golden():
+    cache: dict[str, Golden] = {}
+
+    def load(name: str) -> Golden:
+        if name not in cache:
+            cache[name] = Golden(name)
+        return cache[name]
+
+    return load
+
+
+_CBF_REPORT: list[tuple] = []
+
+
+@pytest.fixture(scope="session")
+def cbf_report():
+    """Rows (file, N, cases, match rate, worst abs error, p99 abs error, feasible rate)."""
+    return _CBF_REPORT
+
+
+def pytest_terminal_summary(terminalreporter):
+    if not _CBF_REPORT:
+        return
+    tr = terminalreporter
+    tr.section("CBF accuracy vs rps tight QP (cases with status_tight == 1)")
+    tr.write_line(f"{'file':28s} {'N':>3s} {'cases':>5s} {'match':>6s} {'worst':>9s} {'p99':>9s} {'feasible':>8s}")
+    for name, n, cases, match, worst, p99, feas in sorted(_CBF_REPORT):
+        tr.write_line(f"{name:28s} {n:3d} {cases:5d} {match:6.1%} {worst:9.2e} {p99:9.2e} {feas:8.1%}")

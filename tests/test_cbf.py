@@ -1,0 +1,233 @@
+"""Barrier certificates: rps tight-QP golden cases, invariants, closed-loop safety, robustness."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from marbler_jax import cbf, controllers, physics
+from tests.conftest import robot_major
+
+# golden file -> (kind, kwargs)
+GOLDEN_CBF = {
+    "si_cert2_marbler_safe": ("si2", dict(safety_radius=0.2)),
+    "si_cert_default": ("si", {}),
+    "si_cert_boundary_default": ("si_boundary", {}),
+    "si_cert_boundary_r020": ("si_boundary", dict(safety_radius=0.2)),
+    "uni_cert_default": ("uni", {}),
+    "uni_cert2_default": ("uni2", {}),
+    "uni_cert_boundary_default": ("uni_boundary", {}),
+    "uni_cert_boundary_r015": ("uni_boundary", dict(safety_radius=0.15)),
+}
+NS = [2, 4, 6, 8, 20]
+
+
+def _golden_cases(golden, fname):
+    g = golden(f"cbf/{fname}.npz")
+    for n in NS:
+        c = g[n]
+        yield n, robot_major(c["x"]), robot_major(c["u_nom"]), robot_major(c["u_out_tight"]), c["status_tight"] == 1
+
+
+def _case_errors(kind, u, ref):
+    """Per-case error relative to the acceptance tolerance (<= 1 means the case matches)."""
+    err = np.abs(u - ref)
+    scale = np.abs(ref).max(axis=(1, 2))
+    if kind in cbf.UNI_KINDS:
+        ratio_v = err[..., 0].max(1) / (5e-4 + 1e-3 * scale)
+        ratio_w = err[..., 1].max(1) / (1e-2 + 2e-2 * scale)
+        return np.maximum(ratio_v, ratio_w), err.max(axis=(1, 2))
+    return err.max(axis=(1, 2)) / (5e-4 + 1e-3 * scale), err.max(axis=(1, 2))
+
+
+@pytest.mark.parametrize("fname", sorted(GOLDEN_CBF))
+def test_matches_rps_tight_qp(golden, fname, cbf_report):
+    kind, kwargs = GOLDEN_CBF[fname]
+    barrier = cbf.make_barrier(kind, **kwargs)
+    for n, x, u_nom, ref, ok in _golden_cases(golden, fname):
+        with jax.enable_x64(True):
+            u, info = jax.jit(barrier.solve)(jnp.asarray(u_nom), jnp.asarray(x))
+            u = np.asarray(u)
+        assert np.all(np.isfinite(u)), f"{fname} N={n}: non-finite output"
+        ratio, abs_err = _case_errors(kind, u, ref)
+        match = ratio[ok] <= 1.0
+        cbf_report.append((fname, n, int(ok.sum()), float(match.mean()), float(abs_err[ok].max()),
+                           float(np.percentile(abs_err[ok], 99)), float(np.asarray(info.feasible)[ok].mean())))
+        assert match.mean() >= 0.98, (
+            f"{fname} N={n}: only {match.mean():.1%} of {ok.sum()} cases match; worst ratio {ratio[ok].max():.2f}"
+        )
+
+
+@pytest.mark.parametrize("kind", ["si2", "uni_boundary"])
+def test_float32_close_to_float64(golden, kind):
+    fname = {"si2": "si_cert2_marbler_safe", "uni_boundary": "uni_cert_boundary_default"}[kind]
+    barrier = cbf.make_barrier(kind, **GOLDEN_CBF[fname][1])
+    for n, x, u_nom, ref, ok in _golden_cases(golden, fname):
+        if n > 8:
+            continue
+        u32 = np.asarray(jax.jit(barrier)(jnp.asarray(u_nom, jnp.float32), jnp.asarray(x, jnp.float32)))
+        assert u32.dtype == np.float32 and np.all(np.isfinite(u32))
+        ratio, _ = _case_errors(kind, u32.astype(np.float64), ref)
+        assert (ratio[ok] <= 1.0).mean() >= 0.95, f"float32 {kind} N={n}"
+
+
+def _random_problem(rng, batch, n, spread=1.2):
+    x = rng.uniform([-spread, -0.8], [spread, 0.8], size=(batch, n, 2))
+    u = rng.normal(size=(batch, n, 2)) * 0.15
+    return x, u
+
+
+def _min_separated(rng, batch, n, radius):
+    """Configurations where every pair is outside the safety radius (well-posed problems)."""
+    out = []
+    while len(out) < batch:
+        x, _ = _random_problem(rng, 1, n)
+        d = physics.pair_distances(x[0])
+        if d.min() > radius * 1.05:
+            out.append(x[0])
+    return np.stack(out)
+
+
+@pytest.mark.parametrize("kind", ["si", "si2", "si_boundary"])
+def test_constraints_hold_after_certification(kind):
+    rng = np.random.default_rng(1)
+    barrier = cbf.make_barrier(kind)
+    x = _min_separated(rng, 64, 8, barrier.si_radius)
+    u_nom = rng.normal(size=x.shape) * 0.2
+    with jax.enable_x64(True):
+        u, info = barrier.solve(jnp.asarray(u_nom), jnp.asarray(x))
+    assert bool(np.all(info.feasible)), f"max violation {float(np.max(info.max_violation)):.2e}"
+    # independent re-check of every pair row: -2 e.u_i + 2 e.u_j <= gain h^3 (relative 1e-4)
+    u = np.asarray(u)
+    iu, ju = np.triu_indices(8, 1)
+    e = x[:, iu] - x[:, ju]
+    h = (e ** 2).sum(-1) - barrier.si_radius ** 2
+    lhs = 2 * (e * (u[:, ju] - u[:, iu])).sum(-1)
+    rhs = barrier.barrier_gain * h ** 3
+    assert np.all(lhs - rhs <= 1e-4 * (1 + np.abs(rhs)))
+    # the certificate changes nothing when the nominal input is already safe
+    calm = np.zeros_like(u_nom)
+    with jax.enable_x64(True):
+        np.testing.assert_allclose(barrier(jnp.asarray(calm), jnp.asarray(x)), 0.0, atol=1e-12)
+
+
+def test_single_active_constraint_is_exact():
+    # two robots closing in head-on: one active row, solved in closed form by the first sweep
+    barrier = cbf.make_barrier("si", iterations=1)
+    x = np.array([[[0.0, 0.0], [0.2, 0.0]]])
+    u_nom = np.array([[[0.2, 0.0], [-0.2, 0.0]]])
+    u = barrier(u_nom, x)
+    e = x[0, 0] - x[0, 1]
+    h = e @ e - 0.17 ** 2
+    a = np.concatenate([-2 * e, 2 * e])
+    lam = (a @ u_nom[0].ravel() - 100 * h ** 3) / (a @ a)
+    np.testing.assert_allclose(u[0].ravel(), u_nom[0].ravel() - lam * a, atol=1e-15)
+
+
+@pytest.mark.parametrize("kind", cbf.KINDS)
+def test_jit_vmap_numpy_agree(kind):
+    rng = np.random.default_rng(2)
+    barrier = cbf.make_barrier(kind)
+    x, u = _random_problem(rng, 6, 5)
+    if kind in cbf.UNI_KINDS:
+        x = np.concatenate([x, rng.uniform(-np.pi, np.pi, size=(6, 5, 1))], axis=-1)
+    with jax.enable_x64(True):
+        xj, uj = jnp.asarray(x), jnp.asarray(u)
+        eager = barrier(uj, xj)
+        jitted = jax.jit(barrier)(uj, xj)
+        vmapped = jax.vmap(barrier)(uj, xj)
+        looped = jnp.stack([barrier(uj[i], xj[i]) for i in range(6)])
+    numpy_out = barrier(u, x)  # the numpy path (deployment bundle) runs the same code
+    assert isinstance(numpy_out, np.ndarray)
+    np.testing.assert_allclose(jitted, eager, atol=1e-12)
+    np.testing.assert_allclose(vmapped, looped, atol=1e-12)
+    np.testing.assert_allclose(numpy_out, eager, atol=1e-10)
+
+
+def _closed_loop(kind, ticks=3000, n=20, seed=0):
+    """n robots on a circle swap to the antipodal point, controller + CBF refreshed every tick."""
+    params = physics.PRESETS["robotarium"]
+    barrier = cbf.make_barrier(kind)
+    angles = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    rng = np.random.default_rng(seed)
+    start = np.stack([1.1 * np.cos(angles), 0.8 * np.sin(angles), angles + np.pi + rng.normal(0, 0.3, n)], -1)
+    goals = -start[:, :2]
+
+    def tick(poses, _):
+        if kind in cbf.SI_KINDS:
+            xi = controllers.uni_to_si_states(poses)
+            dxi = barrier(controllers.si_position_controller(xi, goals), xi)
+            dxu = controllers.si_to_uni_mapping(dxi, poses)
+        else:
+            dxu = controllers.clf_unicycle_position_controller(poses, goals)
+            dxu = barrier(dxu, poses)
+        new = physics.integrate(params, poses, dxu)
+        return new, (physics.collisions(params, poses).any(), physics.out_of_bounds(params, poses).any(),
+                     jnp.min(physics.pair_distances(poses[:, :2])))
+
+    final, (hits, outside, closest) = jax.jit(lambda p: jax.lax.scan(tick, p, None, length=ticks))(
+        jnp.asarray(start, jnp.float32))
+    return np.asarray(final), np.asarray(hits), np.asarray(outside), np.asarray(closest), goals
+
+
+@pytest.mark.parametrize("kind", cbf.KINDS)
+def test_closed_loop_twenty_robots_never_collide(kind):
+    final, hits, outside, closest, goals = _closed_loop(kind)
+    assert not hits.any(), f"{kind}: first collision at tick {int(np.argmax(hits))}"
+    if kind.endswith("boundary"):
+        assert not outside.any()
+    assert np.all(np.isfinite(final))
+    # the swap makes progress (robots are not frozen by the certificate)
+    progress = np.linalg.norm(final[:, :2] - goals, axis=-1)
+    assert np.median(progress) < 1.0, f"{kind}: median distance to goal {np.median(progress):.2f} m"
+
+
+finite = st.floats(-3, 3, allow_nan=False, allow_infinity=False, width=32)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    kind=st.sampled_from(cbf.KINDS),
+    n=st.integers(1, 6),
+    data=st.data(),
+)
+def test_never_nan_or_inf(kind, n, data):
+    state_dim = 3 if kind in cbf.UNI_KINDS else 2
+    x = np.array(data.draw(st.lists(finite, min_size=n * state_dim, max_size=n * state_dim)), np.float32)
+    u = np.array(data.draw(st.lists(finite, min_size=2 * n, max_size=2 * n)), np.float32)
+    x = x.reshape(n, state_dim)
+    if data.draw(st.booleans()) and n > 1:
+        x[1] = x[0]  # coincident robots: a degenerate, infeasible row
+    barrier = cbf.make_barrier(kind, iterations=8)
+    out, info = barrier.solve(jnp.asarray(u.reshape(n, 2)), jnp.asarray(x))
+    assert np.all(np.isfinite(np.asarray(out)))
+    assert np.isfinite(float(info.max_violation))
+    if n > 1 and np.array_equal(x[0, :2], x[1, :2]) and state_dim == 2:
+        assert not bool(info.feasible)
+
+
+def test_bad_arguments_are_rejected_clearly():
+    with pytest.raises(ValueError, match="unknown barrier kind 'qp'"):
+        cbf.make_barrier("qp")
+    with pytest.raises(ValueError, match="does not take \\['boundary_points'\\]"):
+        cbf.make_barrier("si", boundary_points=(-1, 1, -1, 1))
+    with pytest.raises(ValueError, match="safety_radius must be >= 0.12"):
+        cbf.make_barrier("si", safety_radius=0.05)
+    with pytest.raises(ValueError, match="magnitude_limit"):
+        cbf.make_barrier("si2", magnitude_limit=0.5)
+    with pytest.raises(ValueError, match="relaxation"):
+        cbf.make_barrier("si2", relaxation=2.5)
+    barrier = cbf.make_barrier("uni")
+    with pytest.raises(ValueError, match=r"x \[\.\.\., N, 3\]"):
+        barrier(np.zeros((4, 2)), np.zeros((4, 2)))
+
+
+def test_round_robin_covers_every_pair_once():
+    for n in range(1, 12):
+        first, second = cbf.round_robin(n)
+        pairs = {tuple(sorted(p)) for p in zip(first.ravel(), second.ravel()) if max(p) < n}
+        assert pairs == {(i, j) for i in range(n) for j in range(i + 1, n)}
+        assert len([p for p in zip(first.ravel(), second.ravel()) if max(p) < n]) == n * (n - 1) // 2

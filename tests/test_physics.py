@@ -1,0 +1,131 @@
+"""Physics against rps traces (golden uni_step*.npz) and invariants."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from marbler_jax import physics
+from tests.conftest import angle_diff, robot_major
+
+STEP_FILES = {
+    "uni_step.npz": "marbler",
+    "uni_step_rpsv1last.npz": "rps2024",
+    "uni_step_rpsv2.npz": "robotarium",
+}
+NS = [1, 4, 8, 20]
+
+
+def _pose_err(a, b):
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    return max(np.abs(a[..., :2] - b[..., :2]).max(), angle_diff(a[..., 2], b[..., 2]).max())
+
+
+@pytest.mark.parametrize("fname", sorted(STEP_FILES))
+@pytest.mark.parametrize("n", NS)
+def test_step_matches_rps_float64(golden, fname, n):
+    g = golden(fname)[n]
+    params = physics.PRESETS[STEP_FILES[fname]]
+    poses0, cmd = robot_major(g["poses0"]), robot_major(g["vel_cmd"])
+    with jax.enable_x64(True):
+        p1 = physics.integrate(params, jnp.asarray(poses0), jnp.asarray(cmd))
+        p30 = physics.integrate(params, jnp.asarray(poses0), jnp.asarray(cmd), ticks=30)
+        assert p1.dtype == jnp.float64
+    assert _pose_err(p1, robot_major(g["poses1"])) <= 1e-12
+    assert _pose_err(p30, robot_major(g["poses30"])) <= 1e-9
+    # numpy path is the same code
+    assert _pose_err(physics.integrate(params, poses0, cmd), robot_major(g["poses1"])) <= 1e-12
+    # what set_velocities stores in 6bb184e is the thresholded command
+    if STEP_FILES[fname] == "marbler":
+        np.testing.assert_allclose(physics.threshold(params, cmd), robot_major(g["vel_after_set"]), atol=1e-15)
+
+
+@pytest.mark.parametrize("fname", sorted(STEP_FILES))
+@pytest.mark.parametrize("n", NS)
+def test_trajectories_match_rps(golden, fname, n):
+    g = golden(fname)[n]
+    params = physics.PRESETS[STEP_FILES[fname]]
+    traj_const, vel_cmd = robot_major(g["traj_const"]), robot_major(g["vel_cmd"])[: len(g["traj_const"])]
+    traj_seq, vel_seq = robot_major(g["traj_seq"]), robot_major(g["vel_seq"])
+    with jax.enable_x64(True):
+        for t in (1, 7, 30):
+            out = physics.integrate(params, jnp.asarray(traj_const[:, 0]), jnp.asarray(vel_cmd), ticks=t)
+            assert _pose_err(out, traj_const[:, t]) <= 1e-9
+        pose = jnp.asarray(traj_seq[:, 0])
+        for t in range(vel_seq.shape[1]):
+            pose = physics.integrate(params, pose, jnp.asarray(vel_seq[:, t]))
+            assert _pose_err(pose, traj_seq[:, t + 1]) <= 1e-9
+
+
+@pytest.mark.parametrize("fname", sorted(STEP_FILES))
+def test_step_float32(golden, fname):
+    g = golden(fname)[8]
+    params = physics.PRESETS[STEP_FILES[fname]]
+    poses0 = jnp.asarray(robot_major(g["poses0"]), jnp.float32)
+    cmd = jnp.asarray(robot_major(g["vel_cmd"]), jnp.float32)
+    p30 = physics.integrate(params, poses0, cmd, ticks=30)
+    assert p30.dtype == jnp.float32
+    assert _pose_err(p30, robot_major(g["poses30"])) <= 2e-5
+    step = jax.jit(lambda p: physics.integrate(params, p, cmd))
+    pose = poses0
+    for _ in range(30):
+        pose = step(pose)
+    assert _pose_err(pose, robot_major(g["poses30"])) <= 2e-5
+
+
+def test_multi_tick_equals_tick_loop_including_zero_omega():
+    params = physics.PRESETS["robotarium"]
+    rng = np.random.default_rng(0)
+    poses = rng.uniform([-1.5, -0.9, -np.pi], [1.5, 0.9, np.pi], size=(64, 5, 3))
+    vel = rng.uniform([-0.3, -5], [0.3, 5], size=(64, 5, 2))
+    vel[:8, :, 1] = 0.0  # straight lines: the closed form's 0/0 case
+    vel[8:16, :, 1] = 1e-9
+    looped = poses
+    for _ in range(29):
+        looped = physics.integrate(params, looped, vel)
+    closed = physics.integrate(params, poses, vel, ticks=29)
+    assert _pose_err(closed, looped) <= 1e-12
+    assert np.all(np.isfinite(closed))
+
+
+def test_thresholding_modes():
+    marbler, v2 = physics.PRESETS["marbler"], physics.PRESETS["robotarium"]
+    cmd = np.array([[0.15, np.pi], [0.5, -7.0], [-0.3, 0.0]])
+    np.testing.assert_allclose(physics.threshold(marbler, cmd), [[0.15, np.pi], [0.2, -0.4 / 0.11], [-0.2, 0.0]])
+    wheels = physics.uni_to_diff(v2, physics.threshold(v2, cmd))
+    assert np.all(np.abs(wheels) <= 12.5 + 1e-12)
+    # within limits nothing changes; uni <-> diff round trip
+    ok = np.array([[0.1, 0.5]])
+    np.testing.assert_allclose(physics.threshold(v2, ok), ok)
+    np.testing.assert_allclose(physics.diff_to_uni(v2, physics.uni_to_diff(v2, cmd)), cmd, atol=1e-14)
+
+
+def test_collisions_and_boundary_match_rps_rules():
+    params = physics.PRESETS["marbler"]
+    # two robots facing each other: centres 0.185 apart, shifted centres 0.135 apart -> collide (<=)
+    poses = np.array([[0.0, 0.0, 0.0], [0.185, 0.0, np.pi], [1.0, 0.5, 0.0]])
+    np.testing.assert_array_equal(physics.collisions(params, poses), [True, True, False])
+    assert physics.collision_pairs(params, poses) == 1
+    # back to back at the same distance: shifted centres 0.235 apart -> no collision
+    poses_back = np.array([[0.0, 0.0, np.pi], [0.185, 0.0, 0.0], [1.0, 0.5, 0.0]])
+    assert not physics.collisions(params, poses_back).any()
+    edge = np.array([[1.6, 0.0, 0.0], [1.6001, 0.0, 0.0], [0.0, -1.0001, 0.0]])
+    np.testing.assert_array_equal(physics.out_of_bounds(params, edge), [False, True, True])
+
+
+def test_jit_vmap_and_validation():
+    params = physics.get_params()
+    assert params is physics.PRESETS["robotarium"]
+    poses = jnp.zeros((7, 4, 3))
+    vel = jnp.ones((7, 4, 2)) * jnp.array([0.1, 1.0])
+    jitted = jax.jit(physics.integrate, static_argnums=(0, 3))
+    np.testing.assert_allclose(jitted(params, poses, vel, 15), physics.integrate(params, poses, vel, 15), atol=1e-6)
+    vm = jax.vmap(lambda p, v: physics.integrate(params, p, v, 3))(poses, vel)
+    np.testing.assert_allclose(vm, physics.integrate(params, poses, vel, 3), atol=1e-7)
+    with pytest.raises(ValueError, match="unknown physics preset 'nope'"):
+        physics.get_params("nope")
+    with pytest.raises(ValueError, match=r"\[1, 50\]"):
+        physics.check_num_robots(params, 51)
+    with pytest.raises(ValueError, match="ticks"):
+        physics.integrate(params, poses, vel, -1)
