@@ -25,6 +25,11 @@ def is_jax(*arrays: Any) -> bool:
     return array_type is not None and any(isinstance(a, array_type) for a in arrays)
 
 
+def jax_module():
+    """The already-imported ``jax`` module (callers only get here with JAX inputs)."""
+    return sys.modules["jax"]
+
+
 def namespace(*arrays: Any):
     """``jax.numpy`` if any input is a JAX array/tracer, else ``numpy``."""
     if is_jax(*arrays):

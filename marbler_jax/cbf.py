@@ -24,7 +24,7 @@ Solver. The Hessian is the identity, so the dual is a non-negative QP whose coor
 (Hildreth's method) has a closed-form step per row: ``dl = max(-l_k, w (a_k.u - b_k) / |a_k|^2)``,
 ``u -= a_k dl``. A single violated constraint is solved exactly by one such step. We run a
 *fixed* number of sweeps (so the solver jits and vmaps) with over-relaxation ``w`` (SOR; the
-stiff ``*2`` cases converge several times faster with ``w = 1.5`` than plain Gauss-Seidel) and
+stiff ``*2`` cases converge several times faster with ``w = 1.5 .. 1.7`` than plain Gauss-Seidel) and
 exploit the structure:
 
 * a pair row touches two robots only. The C(N,2) pairs are grouped into N-1 rounds of a
@@ -47,7 +47,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from marbler_jax import controllers
-from marbler_jax._xp import fori_loop, namespace, result_dtype
+from marbler_jax._xp import fori_loop, is_jax, jax_module, namespace, result_dtype
 
 SI_KINDS = ("si", "si2", "si_boundary")
 UNI_KINDS = ("uni", "uni2", "uni_boundary")
@@ -105,10 +105,24 @@ def round_robin(n: int) -> tuple[np.ndarray, np.ndarray]:
     return np.array(firsts, np.int32).reshape(shape), np.array(seconds, np.int32).reshape(shape)
 
 
-def default_iterations(kind: str, n: int) -> int:
-    """Sweeps used when ``iterations`` is not given: enough for the rps tight-QP golden cases."""
-    del kind  # one rule fits every kind on the golden cases (see BENCHMARKS.md)
-    return int(min(max(3 * n, 16), 150))
+def default_iterations(n: int) -> int:
+    """Sweeps used when ``iterations`` is not given: ``20 + 4 N`` (at most 250).
+
+    Chosen on the rps tight-QP golden cases, where every kind then matches >= 99 % of the cases
+    for N <= 20 (the clustered wall cases at N = 6 need ~45 sweeps, the stiff ``*2`` cases at
+    N = 20 about 100). Callers with easier problems (robots kept apart by the certificate itself,
+    as inside the env) can pass fewer ``iterations``.
+    """
+    return int(min(20 + 4 * n, 250))
+
+
+def default_relaxation(n: int) -> float:
+    """Over-relaxation used when ``relaxation`` is not given: 1.5 up to 10 robots, 1.7 above.
+
+    Larger teams have longer coupling chains; the stiff ``*2`` cases at N = 20 need 1.7 to converge
+    within the default budget, while small teams converge faster with 1.5.
+    """
+    return 1.5 if n <= 10 else 1.7
 
 
 @dataclasses.dataclass(frozen=True)
@@ -127,7 +141,7 @@ class Barrier:
     projection_distance: float | None = None
     boundary_points: tuple[float, float, float, float] | None = None
     iterations: int | None = None
-    relaxation: float = 1.5
+    relaxation: float | None = None
     tolerance: float = 1e-4
 
     @property
@@ -140,7 +154,12 @@ class Barrier:
         return self.safety_radius + (self.projection_distance or 0.0) * self.is_unicycle
 
     def sweeps(self, n: int) -> int:
-        return self.iterations if self.iterations is not None else default_iterations(self.kind, n)
+        """Coordinate-ascent sweeps used for a team of ``n`` robots."""
+        return self.iterations if self.iterations is not None else default_iterations(n)
+
+    def omega(self, n: int) -> float:
+        """Over-relaxation factor used for a team of ``n`` robots."""
+        return self.relaxation if self.relaxation is not None else default_relaxation(n)
 
     def __call__(self, u_nom, x):
         return self.solve(u_nom, x)[0]
@@ -157,6 +176,11 @@ class Barrier:
                 f"barrier {self.kind!r} expects x [..., N, {state_dim}] and u_nom [..., N, 2]; "
                 f"got x {tuple(x.shape)} and u_nom {tuple(u_nom.shape)}"
             )
+        if is_jax(u_nom, x):
+            return _jax_solver(self)(u_nom, x)
+        return self._solve(u_nom, x)
+
+    def _solve(self, u_nom, x):
         if not self.is_unicycle:
             return solve_si(self, u_nom, x)
         d = self.projection_distance
@@ -164,6 +188,33 @@ class Barrier:
         dxi = controllers.uni_to_si_dynamics(u_nom, x, d)
         dxi, info = solve_si(self, dxi, points)
         return controllers.si_to_uni_mapping(dxi, x, d), info
+
+
+@functools.lru_cache(maxsize=None)
+def _jax_solver(barrier: Barrier):
+    """``barrier._solve`` with a vmap rule that keeps the batch on the minor axis.
+
+    Plain ``jax.vmap`` would put the mapped axis first; the rule instead calls the solver on
+    the batched arrays, which folds every batch axis into the minor (SIMD) axis. Nested vmaps
+    (seeds x envs) apply the rule once per level. Only reached with JAX inputs.
+    """
+    jax = jax_module()
+
+    @jax.custom_batching.custom_vmap
+    def solve(u_nom, x):
+        return barrier._solve(u_nom, x)
+
+    @solve.def_vmap
+    def _rule(axis_size, in_batched, u_nom, x):
+        u_batched, x_batched = in_batched
+        if not u_batched:
+            u_nom = jax.numpy.broadcast_to(u_nom, (axis_size,) + u_nom.shape)
+        if not x_batched:
+            x = jax.numpy.broadcast_to(x, (axis_size,) + x.shape)
+        out = solve(u_nom, x)
+        return out, jax.tree_util.tree_map(lambda _: True, out)
+
+    return solve
 
 
 def make_barrier(kind: str = "si2", **params) -> Barrier:
@@ -175,7 +226,8 @@ def make_barrier(kind: str = "si2", **params) -> Barrier:
             boundary_points: as in rps (defaults per kind, rps 6bb184e); ``boundary_points`` is
             ``(x_min, x_max, y_min, y_max)``.
         iterations: solver sweeps (static); default grows with N (:func:`default_iterations`).
-        relaxation: over-relaxation factor in (0, 2) of the coordinate-ascent sweeps.
+        relaxation: over-relaxation factor in (0, 2) of the coordinate-ascent sweeps; default
+            :func:`default_relaxation`.
         tolerance: relative feasibility tolerance used by ``CertificateInfo.feasible``.
     """
     if kind not in _DEFAULTS:
@@ -211,14 +263,15 @@ def make_barrier(kind: str = "si2", **params) -> Barrier:
     iterations = cfg.get("iterations")
     if iterations is not None and (int(iterations) != iterations or iterations < 0):
         raise ValueError(f"iterations must be a non-negative integer, got {iterations}")
-    relaxation = float(cfg.get("relaxation", 1.5))
-    if not 0 < relaxation < 2:
+    relaxation = cfg.get("relaxation")
+    if relaxation is not None and not 0 < float(relaxation) < 2:
         raise ValueError(f"relaxation must be in (0, 2), got {relaxation}")
     return Barrier(
         kind=kind, safety_radius=radius, barrier_gain=gain, magnitude_limit=limit,
         unsafe_barrier_gain=None if unsafe is None else float(unsafe),
         projection_distance=None if proj is None else float(proj), boundary_points=bounds,
-        iterations=None if iterations is None else int(iterations), relaxation=relaxation,
+        iterations=None if iterations is None else int(iterations),
+        relaxation=None if relaxation is None else float(relaxation),
         tolerance=float(cfg.get("tolerance", 1e-4)),
     )
 
@@ -255,8 +308,24 @@ def _boxes(barrier: Barrier, positions, xp):
     return lo, hi
 
 
+def _to_minor(a, batch_ndim, xp):
+    """``[*batch, *rest] -> [*rest, B]``: the flattened batch becomes the minor (SIMD) axis."""
+    rest = a.shape[batch_ndim:]
+    flat = a.reshape((-1,) + rest)
+    return xp.moveaxis(flat, 0, -1)
+
+
+def _from_minor(a, batch_shape, xp):
+    """Inverse of :func:`_to_minor`."""
+    return xp.moveaxis(a, -1, 0).reshape(tuple(batch_shape) + a.shape[:-1])
+
+
 def solve_si(barrier: Barrier, u_nom, positions):
-    """The SI certificate QP for ``positions [..., N, 2]``; returns ``(u [..., N, 2], info)``."""
+    """The SI certificate QP for ``positions [..., N, 2]``; returns ``(u [..., N, 2], info)``.
+
+    Internally every batch axis is folded into the last (minor) axis, so each vector step of the
+    sweep runs over the whole batch with unit stride.
+    """
     xp = namespace(u_nom, positions)
     n = positions.shape[-2]
     u_hat = controllers.cap_norm(u_nom, barrier.magnitude_limit)
@@ -267,52 +336,70 @@ def solve_si(barrier: Barrier, u_nom, positions):
     first, second = round_robin(n)
     rounds, half = first.shape
     m = n + n % 2
+    nb = len(batch)
     e, b, a2, valid = _pair_rows(barrier, positions, xp)
     usable = a2 > 0
-    inv_a2 = xp.where(usable, 1 / xp.where(usable, a2, 1), 0)
-    ex, ey = 2 * e[..., 0], 2 * e[..., 1]
+    inv_a2 = _to_minor(xp.where(usable, 1 / xp.where(usable, a2, 1), 0), nb, xp)  # [R, H, B]
+    ex = _to_minor(2 * e[..., 0], nb, xp)
+    ey = _to_minor(2 * e[..., 1], nb, xp)
+    bm = _to_minor(b, nb, xp)
     boxed = barrier.boundary_points is not None
-    lo, hi = _boxes(barrier, positions, xp) if boxed else (None, None)
-    omega = barrier.relaxation
+    if boxed:
+        lo, hi = _boxes(barrier, positions, xp)
+        lo_x, lo_y = _to_minor(lo[..., 0], nb, xp), _to_minor(lo[..., 1], nb, xp)  # [N, B]
+        hi_x, hi_y = _to_minor(hi[..., 0], nb, xp), _to_minor(hi[..., 1], nb, xp)
+    omega = barrier.omega(n)
 
     def rotate(v):  # slots 1..m-1 right by one (circle method)
-        return xp.concatenate([v[..., :1], v[..., -1:], v[..., 1:-1]], axis=-1)
+        return xp.concatenate([v[:1], v[-1:], v[1:-1]], axis=0)
+
+    def box_step(uc, lam_lo, lam_hi, lo_c, hi_c, w):
+        step_hi = xp.maximum(-lam_hi, w * (uc - hi_c))
+        uc = uc - step_hi
+        step_lo = xp.maximum(-lam_lo, w * (lo_c - uc))
+        return uc + step_lo, lam_lo + step_lo, lam_hi + step_hi
 
     def sweep(i, carry):
-        ux, uy, lam, lam_lo, lam_hi = carry
+        ux, uy, lam, box = carry
         # The first sweep is plain Gauss-Seidel: it solves single-active-constraint problems exactly.
-        w = xp.where(i == 0, 1.0, omega) if xp is not np else (1.0 if i == 0 else omega)
+        w = (1.0 if i == 0 else omega) if xp is np else xp.where(i == 0, 1.0, omega)
         lam = list(lam)
         for r in range(rounds):
-            ax, bx = ux[..., :half], ux[..., half:][..., ::-1]
-            ay, by = uy[..., :half], uy[..., half:][..., ::-1]
-            exr, eyr = ex[..., r, :], ey[..., r, :]
-            viol = exr * (bx - ax) + eyr * (by - ay) - b[..., r, :]
-            step = xp.maximum(-lam[r], w * viol * inv_a2[..., r, :])
+            ax, bx = ux[:half], ux[half:][::-1]
+            ay, by = uy[:half], uy[half:][::-1]
+            exr, eyr = ex[r], ey[r]
+            viol = exr * (bx - ax) + eyr * (by - ay) - bm[r]
+            step = xp.maximum(-lam[r], w * viol * inv_a2[r])
             lam[r] = lam[r] + step
             px, py = exr * step, eyr * step
-            ux = rotate(xp.concatenate([ax + px, (bx - px)[..., ::-1]], axis=-1))
-            uy = rotate(xp.concatenate([ay + py, (by - py)[..., ::-1]], axis=-1))
+            ux = rotate(xp.concatenate([ax + px, (bx - px)[::-1]], axis=0))
+            uy = rotate(xp.concatenate([ay + py, (by - py)[::-1]], axis=0))
         if boxed:
-            u = xp.stack([ux[..., :n], uy[..., :n]], axis=-1)
-            step_hi = xp.maximum(-lam_hi, w * (u - hi))
-            lam_hi = lam_hi + step_hi
-            u = u - step_hi
-            step_lo = xp.maximum(-lam_lo, w * (lo - u))
-            lam_lo = lam_lo + step_lo
-            u = u + step_lo
-            ux = xp.concatenate([u[..., 0], ux[..., n:]], axis=-1)
-            uy = xp.concatenate([u[..., 1], uy[..., n:]], axis=-1)
-        return ux, uy, tuple(lam), lam_lo, lam_hi
+            llx, lhx, lly, lhy = box
+            cx, llx, lhx = box_step(ux[:n], llx, lhx, lo_x, hi_x, w)
+            cy, lly, lhy = box_step(uy[:n], lly, lhy, lo_y, hi_y, w)
+            ux = xp.concatenate([cx, ux[n:]], axis=0)
+            uy = xp.concatenate([cy, uy[n:]], axis=0)
+            box = (llx, lhx, lly, lhy)
+        return ux, uy, tuple(lam), box
 
-    padded = xp.concatenate([u_hat, xp.zeros(batch + (m - n, 2), dtype=u_hat.dtype)], axis=-2)
-    lam0 = tuple(xp.zeros(batch + (half,), dtype=u_hat.dtype) for _ in range(rounds))
-    box0 = xp.zeros(u_hat.shape, dtype=u_hat.dtype)
-    carry = (padded[..., 0], padded[..., 1], lam0, box0, box0)
-    ux, uy, lam, lam_lo, lam_hi = fori_loop(xp, 0, barrier.sweeps(n), sweep, carry)
+    flat_b = bm.shape[-1]
+    uh = _to_minor(u_hat, nb, xp)  # [N, 2, B]
+    pad = xp.zeros((m - n, flat_b), dtype=u_hat.dtype)
+    ux0 = xp.concatenate([uh[:, 0], pad], axis=0)
+    uy0 = xp.concatenate([uh[:, 1], pad], axis=0)
+    lam0 = tuple(xp.zeros((half, flat_b), dtype=u_hat.dtype) for _ in range(rounds))
+    zero_box = xp.zeros((n, flat_b), dtype=u_hat.dtype)
+    box0 = (zero_box,) * 4 if boxed else ()
+    ux, uy, lam, box = fori_loop(xp, 0, barrier.sweeps(n), sweep, (ux0, uy0, lam0, box0))
     # (m - 1) rotations per sweep bring the slots back to robot order.
-    u = xp.stack([ux[..., :n], uy[..., :n]], axis=-1)
-    lam = xp.stack(lam, axis=-2) if rounds else xp.zeros(b.shape, dtype=u.dtype)
+    u = _from_minor(xp.stack([ux[:n], uy[:n]], axis=1), batch, xp)
+    lam = _from_minor(xp.stack(lam, axis=0), batch, xp)  # [..., R, H]
+    if boxed:
+        llx, lhx, lly, lhy = (_from_minor(v, batch, xp) for v in box)
+        lam_lo, lam_hi = xp.stack([llx, lly], axis=-1), xp.stack([lhx, lhy], axis=-1)
+    else:
+        lo = hi = lam_lo = lam_hi = None
     return u, _diagnostics(barrier, u, e, b, a2, valid, lam, lo, hi, lam_lo, lam_hi, xp)
 
 
@@ -321,23 +408,28 @@ def _diagnostics(barrier, u, e, b, a2, valid, lam, lo, hi, lam_lo, lam_hi, xp):
     n = u.shape[-2]
     first, second = round_robin(n)
     batch = u.shape[:-2]
-    padded = xp.concatenate([u, xp.zeros(batch + (first.size and (n % 2), 2), dtype=u.dtype)], axis=-2)
-    gap = 2 * xp.sum(e * (padded[..., second, :] - padded[..., first, :]), axis=-1) - b
-    usable = a2 > 0
-    row_norm = xp.sqrt(xp.where(usable, a2, 1))
-    pair_viol = xp.where(usable, gap / row_norm, xp.where(valid & (b < 0), -b, 0))
     flat = batch + (-1,)
-    worst = xp.max(pair_viol.reshape(flat), axis=-1) if first.size else xp.zeros(batch, u.dtype)
-    active = xp.sum((lam > 0).reshape(flat), axis=-1) if first.size else xp.zeros(batch, xp.int32)
+    if first.size:
+        padded = xp.concatenate([u, xp.zeros(batch + (n % 2, 2), dtype=u.dtype)], axis=-2)
+        gap = 2 * xp.sum(e * (padded[..., second, :] - padded[..., first, :]), axis=-1) - b
+        usable = a2 > 0
+        row_norm = xp.sqrt(xp.where(usable, a2, 1))
+        pair_viol = xp.where(usable, gap / row_norm, xp.where(valid & (b < 0), -b, 0))
+        worst = xp.max(pair_viol.reshape(flat), axis=-1)
+        active = xp.sum((lam > 0).reshape(flat), axis=-1)
+        degenerate = xp.any((valid & ~usable & (b < 0)).reshape(flat), axis=-1)
+    else:
+        worst = xp.zeros(batch, dtype=u.dtype)
+        active = xp.zeros(batch, dtype=xp.int32)
+        degenerate = worst > 0
     if lo is not None:
         box_viol = xp.maximum(u - hi, lo - u)
         worst = xp.maximum(worst, xp.max(box_viol.reshape(flat), axis=-1))
         active = active + xp.sum(((lam_lo > 0) | (lam_hi > 0)).reshape(flat), axis=-1)
     scale = 1 + xp.max(xp.abs(u).reshape(flat), axis=-1)
-    degenerate = xp.any((valid & ~usable & (b < 0)).reshape(flat), axis=-1) if first.size else worst < -1
     feasible = (worst <= barrier.tolerance * scale) & ~degenerate
     return CertificateInfo(worst, feasible, active)
 
 
 __all__ = ["make_barrier", "Barrier", "CertificateInfo", "KINDS", "SI_KINDS", "UNI_KINDS",
-           "round_robin", "default_iterations", "solve_si"]
+           "round_robin", "default_iterations", "default_relaxation", "solve_si"]

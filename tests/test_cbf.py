@@ -130,16 +130,16 @@ def test_single_active_constraint_is_exact():
 @pytest.mark.parametrize("kind", cbf.KINDS)
 def test_jit_vmap_numpy_agree(kind):
     rng = np.random.default_rng(2)
-    barrier = cbf.make_barrier(kind)
-    x, u = _random_problem(rng, 6, 5)
+    barrier = cbf.make_barrier(kind, iterations=6)
+    x, u = _random_problem(rng, 3, 5)
     if kind in cbf.UNI_KINDS:
-        x = np.concatenate([x, rng.uniform(-np.pi, np.pi, size=(6, 5, 1))], axis=-1)
+        x = np.concatenate([x, rng.uniform(-np.pi, np.pi, size=(3, 5, 1))], axis=-1)
     with jax.enable_x64(True):
         xj, uj = jnp.asarray(x), jnp.asarray(u)
         eager = barrier(uj, xj)
         jitted = jax.jit(barrier)(uj, xj)
         vmapped = jax.vmap(barrier)(uj, xj)
-        looped = jnp.stack([barrier(uj[i], xj[i]) for i in range(6)])
+        looped = jnp.stack([barrier(uj[i], xj[i]) for i in range(3)])
     numpy_out = barrier(u, x)  # the numpy path (deployment bundle) runs the same code
     assert isinstance(numpy_out, np.ndarray)
     np.testing.assert_allclose(jitted, eager, atol=1e-12)
@@ -148,16 +148,19 @@ def test_jit_vmap_numpy_agree(kind):
 
 
 def _closed_loop(kind, ticks=3000, n=20, seed=0):
-    """n robots on a circle swap to the antipodal point, controller + CBF refreshed every tick."""
+    """n robots on a circle swap to the antipodal point, controller + CBF refreshed every tick.
+
+    ``kind=None`` runs the same loop without a certificate.
+    """
     params = physics.PRESETS["robotarium"]
-    barrier = cbf.make_barrier(kind)
+    barrier = cbf.make_barrier(kind) if kind else (lambda u, x: u)
     angles = np.linspace(0, 2 * np.pi, n, endpoint=False)
     rng = np.random.default_rng(seed)
     start = np.stack([1.1 * np.cos(angles), 0.8 * np.sin(angles), angles + np.pi + rng.normal(0, 0.3, n)], -1)
     goals = -start[:, :2]
 
     def tick(poses, _):
-        if kind in cbf.SI_KINDS:
+        if kind is None or kind in cbf.SI_KINDS:
             xi = controllers.uni_to_si_states(poses)
             dxi = barrier(controllers.si_position_controller(xi, goals), xi)
             dxu = controllers.si_to_uni_mapping(dxi, poses)
@@ -185,10 +188,16 @@ def test_closed_loop_twenty_robots_never_collide(kind):
     assert np.median(progress) < 1.0, f"{kind}: median distance to goal {np.median(progress):.2f} m"
 
 
+def test_closed_loop_without_certificate_collides():
+    # the scenario above is a real test: without a barrier the swap crashes robots into each other
+    _, hits, _, _, _ = _closed_loop(None, ticks=600)
+    assert hits.any()
+
+
 finite = st.floats(-3, 3, allow_nan=False, allow_infinity=False, width=32)
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=25, deadline=None)
 @given(
     kind=st.sampled_from(cbf.KINDS),
     n=st.integers(1, 6),
