@@ -29,7 +29,9 @@ import dataclasses
 import operator
 from typing import Literal
 
-from marbler_jax._xp import namespace, result_dtype
+import numpy as np
+
+from marbler_jax._xp import fori_loop, namespace, result_dtype
 
 ThresholdMode = Literal["components", "wheels"]
 
@@ -201,6 +203,90 @@ def integrate(params: RobotariumParams, poses, velocities, ticks: int = 1):
     )
 
 
+def trajectory(params: RobotariumParams, poses, velocities, ticks: int):
+    """All poses visited while holding ``velocities`` for ``ticks`` ticks: ``[ticks + 1, ..., N, 3]``.
+
+    Entry ``k`` is the pose after ``k`` ticks (entry 0 is ``poses``). Every entry is the closed form
+    of :func:`integrate`, evaluated for all ``k`` at once (no sequential loop), so checks that rps
+    runs at every tick (collisions, boundary) can be vectorized over the ticks of a control period.
+    """
+    ticks = int(ticks)
+    if ticks < 1:
+        raise ValueError(f"ticks must be >= 1, got {ticks}")
+    xp = namespace(poses, velocities)
+    dtype = result_dtype(xp, poses, velocities)
+    poses = xp.asarray(poses, dtype=dtype)
+    vel = threshold(params, xp.asarray(velocities, dtype=dtype))
+    k = xp.arange(ticks + 1, dtype=dtype).reshape((ticks + 1,) + (1,) * (poses.ndim - 1))
+    x, y, theta = poses[..., 0], poses[..., 1], poses[..., 2]
+    v, w = vel[..., 0], vel[..., 1]
+    half = params.dt * w / 2
+    small = xp.abs(half) < 1e-6
+    safe_half = xp.where(small, xp.ones_like(half), half)
+    gain = xp.where(small, k * (1 - (k * k - 1) * half * half / 6), xp.sin(k * safe_half) / xp.sin(safe_half))
+    mid = theta + (k - 1) * half
+    travel = params.dt * v * gain
+    return xp.stack(
+        [x + travel * xp.cos(mid), y + travel * xp.sin(mid), wrap_angle(theta + 2 * k * half)], axis=-1
+    )
+
+
+def held_ticks(params: RobotariumParams, poses, velocities, ticks: int, stop_on_violation: bool = True):
+    """Run ``ticks`` ticks holding ``velocities``, validating each pre-tick pose as rps does.
+
+    rps checks the pose *before* integrating each tick (collision: shifted centres ``<=``
+    ``collision_diameter``; boundary: centre strictly outside the arena) and then integrates. With
+    ``stop_on_violation`` the motion stops after the first tick whose pre-tick pose violates (MARBLER
+    ends the env step there). The heading is advanced by rotating ``(cos, sin)`` by the constant
+    angle ``dt * omega``, so the loop needs no trig; it agrees with :func:`integrate` to rounding.
+
+    Args:
+        poses: ``[..., N, 3]``; velocities: ``[..., N, 2]`` (thresholded here); ticks: static.
+
+    Returns:
+        ``(poses [..., N, 3], collided [...], out_of_bounds [...], distance [..., N])`` where the flags
+        say whether a checked pre-tick pose violated, and ``distance`` is the path length driven [m].
+    """
+    xp = namespace(poses, velocities)
+    dtype = result_dtype(xp, poses, velocities)
+    poses = xp.asarray(poses, dtype=dtype)
+    vel = threshold(params, xp.asarray(velocities, dtype=dtype))
+    n = poses.shape[-2]
+    first, second = np.triu_indices(n, 1)
+    x_min, x_max, y_min, y_max = params.arena
+    off, diam2 = params.collision_offset, params.collision_diameter ** 2
+    step = params.dt * vel[..., 0]
+    delta = params.dt * vel[..., 1]
+    cos_d, sin_d = xp.cos(delta), xp.sin(delta)
+    batch = poses.shape[:-2]
+    false = xp.zeros(batch, dtype=bool)
+
+    def tick(_, carry):
+        x, y, c, s, stopped, hit, out, dist = carry
+        cx, cy = x + off * c, y + off * s
+        dx = cx[..., first] - cx[..., second]
+        dy = cy[..., first] - cy[..., second]
+        hit_now = xp.any(dx * dx + dy * dy <= diam2, axis=-1) if len(first) else false
+        out_now = xp.any((x < x_min) | (x > x_max) | (y < y_min) | (y > y_max), axis=-1)
+        live = ~stopped
+        hit = hit | (live & hit_now)
+        out = out | (live & out_now)
+        move = live[..., None]
+        x = xp.where(move, x + step * c, x)
+        y = xp.where(move, y + step * s, y)
+        c, s = xp.where(move, c * cos_d - s * sin_d, c), xp.where(move, s * cos_d + c * sin_d, s)
+        dist = dist + xp.where(move, xp.abs(step), 0)
+        if stop_on_violation:
+            stopped = stopped | hit_now | out_now
+        return x, y, c, s, stopped, hit, out, dist
+
+    theta = poses[..., 2]
+    carry = (poses[..., 0], poses[..., 1], xp.cos(theta), xp.sin(theta), false, false, false,
+             xp.zeros(poses.shape[:-1], dtype=dtype))
+    x, y, c, s, _, hit, out, dist = fori_loop(xp, 0, int(ticks), tick, carry)
+    return xp.stack([x, y, xp.arctan2(s, c)], axis=-1), hit, out, dist
+
+
 def collision_centres(params: RobotariumParams, poses):
     """Centres used by the collision test: positions shifted forward by ``collision_offset``."""
     xp = namespace(poses)
@@ -273,7 +359,7 @@ def max_angular_velocity(params: RobotariumParams) -> float:
 
 __all__ = [
     "RobotariumParams", "PRESETS", "DEFAULT_PRESET", "get_params", "uni_to_diff", "diff_to_uni",
-    "threshold", "wrap_angle", "integrate", "collision_centres", "pair_distances", "collisions",
+    "threshold", "wrap_angle", "integrate", "trajectory", "held_ticks", "collision_centres", "pair_distances", "collisions",
     "collision_pairs", "out_of_bounds", "actuator_violations", "check_num_robots",
     "max_angular_velocity",
 ]

@@ -1,0 +1,246 @@
+"""The batched MARBLER env core: one pure ``reset`` / ``step`` shared by every scenario.
+
+``env = marbler_jax.make(name, **overrides)``; then, for a single env (vmap/jit it for many)::
+
+    obs, state = env.reset(key)                                   # obs [N, obs_dim] float32
+    obs, state, rewards, done, info = env.step(key, state, actions)   # actions [N] int32
+
+One env step runs MARBLER's control loop (``robotarium_gym/utilities/roboEnv.py``):
+
+1. actions -> waypoints from the poses at the start of the step;
+2. for ``update_frequency`` simulator ticks, every ``control_period`` ticks recompute
+   SI position controller (projection point) -> barrier certificate -> SI -> unicycle map and hold
+   the command in between; before each tick, check the pose for collisions / boundary violations
+   (rps validates the pre-tick pose, so the last pose of a step is checked at the next step's first
+   tick, exactly as in MARBLER);
+3. with ``penalize_violations`` the step ends after the first violating tick: every agent gets the
+   scenario's violation reward and the episode ends; otherwise the scenario's task update runs.
+
+The ticks of one control period share one command; :func:`marbler_jax.physics.held_ticks` runs them
+with a trig-free heading rotation and the per-tick checks on the i < j pairs.
+
+The episode ends when the step counter exceeds ``max_episode_steps`` (``max_episode_steps + 1`` steps),
+on task completion, or on a penalized violation. ``step`` then auto-resets: it returns the new
+episode's first observation and state, while ``rewards``, ``done`` and ``info`` describe the finished
+transition (``info["returned_episode"]`` is True and the episode metrics are the finished episode's).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from marbler_jax import cbf, controllers, physics
+from marbler_jax.scenarios.base import Scenario, ScenarioConfig
+
+
+@struct.dataclass
+class EnvState:
+    """State of one env (a pytree; batch it with vmap).
+
+    Attributes:
+        poses: ``[N, 3]`` robot poses (x, y, theta).
+        scenario: the scenario's own state pytree.
+        step: env steps taken in this episode (int32).
+        episode_return: team return so far (float32; MARBLER's reported reward).
+        collided: the episode has seen a collision tick (bool).
+        out_of_bounds: the episode has seen a boundary violation tick (bool).
+    """
+
+    poses: jax.Array
+    scenario: Any
+    step: jax.Array
+    episode_return: jax.Array
+    collided: jax.Array
+    out_of_bounds: jax.Array
+
+
+def make_barrier(config: ScenarioConfig, num_agents: int):
+    """The SI barrier for ``config.barrier_certificate`` (``None`` when ``"none"``)."""
+    kind = config.barrier_certificate
+    iterations = config.cbf_iterations if config.cbf_iterations is not None else 8 + 2 * num_agents
+    if kind == "none":
+        return None
+    if kind == "safe":
+        return cbf.make_barrier("si2", safety_radius=0.2, iterations=iterations)
+    if kind == "default":
+        return cbf.make_barrier("si", iterations=iterations)
+    return cbf.make_barrier(kind, iterations=iterations)
+
+
+class MarblerEnv:
+    """A scenario wrapped in MARBLER's control loop; pure ``reset``/``step`` (jit/vmap-able)."""
+
+    def __init__(self, scenario: Scenario):
+        self.scenario = scenario
+        self.config = scenario.config
+        self.params = physics.get_params(self.config.physics)
+        physics.check_num_robots(self.params, scenario.num_agents)
+        self.barrier = make_barrier(self.config, scenario.num_agents)
+
+    # --- sizes -------------------------------------------------------------------------------
+    @property
+    def name(self) -> str:
+        return self.scenario.name
+
+    @property
+    def num_agents(self) -> int:
+        return self.scenario.num_agents
+
+    @property
+    def obs_dim(self) -> int:
+        return self.scenario.obs_dim
+
+    @property
+    def num_actions(self) -> int:
+        return self.scenario.num_actions
+
+    @property
+    def max_steps(self) -> int:
+        """Steps of a full-length episode (``max_episode_steps + 1``)."""
+        return self.config.max_episode_steps + 1
+
+    def __repr__(self) -> str:
+        return f"MarblerEnv({self.name!r}, agents={self.num_agents}, obs_dim={self.obs_dim}, actions={self.num_actions})"
+
+    # --- API ---------------------------------------------------------------------------------
+    def reset(self, key: jax.Array) -> tuple[jax.Array, EnvState]:
+        """Start an episode: ``(obs [N, obs_dim], state)``."""
+        poses, scenario_state = self.scenario.reset(key)
+        state = EnvState(
+            poses=jnp.asarray(poses, jnp.float32), scenario=scenario_state, step=jnp.int32(0),
+            episode_return=jnp.float32(0), collided=jnp.bool_(False), out_of_bounds=jnp.bool_(False),
+        )
+        return self.reset_obs(state), state
+
+    def reset_obs(self, state: EnvState) -> jax.Array:
+        obs = self.observe(state)
+        return jnp.zeros_like(obs) if self.config.zero_reset_obs else obs
+
+    def observe(self, state: EnvState) -> jax.Array:
+        return jnp.asarray(self.scenario.observe(state.poses, state.scenario), state.poses.dtype)
+
+    def step(self, key: jax.Array, state: EnvState, actions: jax.Array):
+        """One env step with auto-reset: ``(obs, state, rewards [N], done, info)``."""
+        key_step, key_reset = jax.random.split(key)
+        obs, next_state, rewards, done, info = self.step_env(key_step, state, actions)
+        reset_obs, reset_state = self.reset(key_reset)
+        next_state = jax.tree_util.tree_map(lambda r, s: jnp.where(done, r, s), reset_state, next_state)
+        obs = jnp.where(done, reset_obs, obs)
+        return obs, next_state, rewards, done, info
+
+    @property
+    def num_segments(self) -> int:
+        """Control refreshes per env step: ``ceil(update_frequency / control_period)``."""
+        return -(-self.config.update_frequency // self.config.control_period)
+
+    def step_env(self, key: jax.Array, state: EnvState, actions: jax.Array, velocities=None):
+        """One env step without auto-reset (``key`` is unused: the dynamics are deterministic).
+
+        ``velocities [num_segments, N, 2]`` optionally replaces the controller's output at each
+        control refresh (replaying a recorded command sequence, e.g. from MARBLER or the robots).
+        """
+        del key
+        actions = self._check_actions(actions)
+        goals = self.scenario.goals(state.poses, state.scenario, actions)
+        poses, collided, outside, dist = self.run_ticks(state.poses, goals, velocities)
+        violated = (collided | outside) & self.config.penalize_violations
+        scenario_state, task_rewards, completed = self.scenario.update(poses, state.scenario, actions)
+        scenario_state = jax.tree_util.tree_map(
+            lambda old, new: jnp.where(violated, old, new), state.scenario, scenario_state)
+        dtype = state.poses.dtype
+        rewards = jnp.where(violated, jnp.asarray(self.scenario.violation_reward, dtype),
+                            jnp.asarray(task_rewards, dtype))
+        step = state.step + 1
+        done = violated | (step > self.config.max_episode_steps) | (completed & ~violated)
+        episode_return = state.episode_return + self.scenario.team_reward(rewards)
+        next_state = EnvState(
+            poses=poses, scenario=scenario_state, step=step, episode_return=episode_return,
+            collided=state.collided | collided, out_of_bounds=state.out_of_bounds | outside,
+        )
+        info = {
+            "collisions": collided,
+            "out_of_bounds": outside,
+            "violation": violated,
+            "steps": step,
+            "returned_episode": done,
+            "episode_return": episode_return,
+            "episode_collided": next_state.collided,
+            "episode_out_of_bounds": next_state.out_of_bounds,
+            "dist_travelled": dist,
+            **{k: jnp.asarray(v) for k, v in self.scenario.metrics(scenario_state).items()},
+        }
+        seen = self.scenario.observation_state(state.scenario, scenario_state)
+        obs = jnp.asarray(self.scenario.observe(poses, seen), poses.dtype)
+        return obs, next_state, rewards, done, info
+
+    def state_to_poses(self, state: EnvState) -> jax.Array:
+        """Robot poses ``[..., N, 3]`` of a (batched) state, for rendering."""
+        return state.poses
+
+    # --- the control loop --------------------------------------------------------------------
+    def velocities(self, poses, goals):
+        """MARBLER's controller: SI position control of the projection point -> CBF -> (v, omega)."""
+        return controllers.marbler_velocities(poses, goals, self.barrier)
+
+    def run_ticks(self, poses, goals, velocities=None):
+        """``update_frequency`` ticks with control refresh every ``control_period`` ticks.
+
+        Returns ``(poses, collided, out_of_bounds, dist_travelled [N])``. With
+        ``penalize_violations`` the motion stops after the first violating tick.
+        """
+        total, period = self.config.update_frequency, self.config.control_period
+        full, rest = divmod(total, period)
+        carry = (poses, jnp.bool_(False), jnp.bool_(False), jnp.bool_(False), jnp.zeros(poses.shape[0], poses.dtype))
+        if velocities is not None:
+            velocities = jnp.asarray(velocities, poses.dtype)
+            if velocities.shape != (self.num_segments, self.num_agents, 2):
+                raise ValueError(f"velocities must have shape {(self.num_segments, self.num_agents, 2)}, "
+                                 f"got {tuple(velocities.shape)}")
+
+        def segment(carry, length, index):
+            pose, stopped, hit_any, out_any, dist = carry
+            vel = self.velocities(pose, goals) if velocities is None else velocities[index]
+            new_pose, hit, out, moved = physics.held_ticks(
+                self.params, pose, vel, length, stop_on_violation=self.config.penalize_violations)
+            live = ~stopped
+            pose = jnp.where(live, new_pose, pose)
+            dist = dist + jnp.where(live, moved, 0)
+            hit_any = hit_any | (live & hit)
+            out_any = out_any | (live & out)
+            if self.config.penalize_violations:
+                stopped = stopped | hit | out
+            return (pose, stopped, hit_any, out_any, dist), None
+
+        if full:
+            carry, _ = jax.lax.scan(lambda c, i: segment(c, period, i), carry, jnp.arange(full))
+        if rest:
+            carry, _ = segment(carry, rest, full)
+        pose, _, hit_any, out_any, dist = carry
+        return pose, hit_any, out_any, dist
+
+    def _check_actions(self, actions):
+        """Shape/dtype errors always raise; out-of-range values raise when concrete (outside jit).
+
+        Under ``jit`` values cannot be inspected, so out-of-range actions are clipped there.
+        """
+        if not isinstance(actions, jax.core.Tracer):
+            values = jax.device_get(actions)
+            import numpy as np
+
+            values = np.asarray(values)
+            if values.size and np.issubdtype(values.dtype, np.integer) and (
+                    values.min() < 0 or values.max() >= self.num_actions):
+                raise ValueError(
+                    f"{self.name}: actions must be in [0, {self.num_actions}), got {values.tolist()}")
+        actions = jnp.asarray(actions)
+        if actions.shape != (self.num_agents,):
+            raise ValueError(
+                f"{self.name}: actions must have shape ({self.num_agents},) (one int per agent), "
+                f"got {tuple(actions.shape)}"
+            )
+        if not jnp.issubdtype(actions.dtype, jnp.integer):
+            raise ValueError(f"{self.name}: actions must be integers in [0, {self.num_actions}), got dtype {actions.dtype}")
+        return jnp.clip(actions.astype(jnp.int32), 0, self.num_actions - 1)

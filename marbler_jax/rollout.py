@@ -1,0 +1,62 @@
+"""Batched rollouts: ``jit(scan(vmap(step)))`` helpers for random or given policies."""
+from __future__ import annotations
+
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+
+
+def random_actions(env, key, batch_shape=()):
+    """Uniform random actions ``[*batch_shape, N]`` int32."""
+    return jax.random.randint(key, tuple(batch_shape) + (env.num_agents,), 0, env.num_actions, jnp.int32)
+
+
+def batched_rollout(env, key, num_envs: int, num_steps: int, policy: Callable | None = None):
+    """Run ``num_envs`` envs for ``num_steps`` steps (auto-reset) with ``policy(key, obs) -> actions``
+    (uniform random when None). Returns the final state and the per-step ``(rewards, done, info)``
+    stacked as ``[num_steps, num_envs, ...]``. Jit it with ``env``, ``num_envs``, ``num_steps`` and
+    ``policy`` static (see :func:`make_rollout`)."""
+    step = jax.vmap(env.step)
+    key_reset, key_run = jax.random.split(key)
+    obs, state = jax.vmap(env.reset)(jax.random.split(key_reset, num_envs))
+
+    def body(carry, key_t):
+        obs, state = carry
+        key_act, key_step = jax.random.split(key_t)
+        if policy is None:
+            actions = random_actions(env, key_act, (num_envs,))
+        else:
+            actions = policy(key_act, obs)
+        obs, state, rewards, done, info = step(jax.random.split(key_step, num_envs), state, actions)
+        return (obs, state), (rewards, done, info)
+
+    (obs, state), traj = jax.lax.scan(body, (obs, state), jax.random.split(key_run, num_steps))
+    return state, traj
+
+
+def make_rollout(env, num_envs: int, num_steps: int, policy: Callable | None = None):
+    """A jitted ``key -> (state, (rewards, done, info))`` for :func:`batched_rollout`."""
+    return jax.jit(lambda key: batched_rollout(env, key, num_envs, num_steps, policy))
+
+
+def episode_stats(traj) -> dict[str, float]:
+    """Mean metrics over the episodes that finished in a rollout trajectory."""
+    rewards, done, info = traj
+    finished = done
+    count = jnp.maximum(jnp.sum(finished), 1)
+
+    def mean_at_done(x):
+        return float(jnp.sum(jnp.where(finished, x, 0)) / count)
+
+    stats = {
+        "episodes": int(jnp.sum(finished)),
+        "return": mean_at_done(info["episode_return"]),
+        "length": mean_at_done(info["steps"]),
+        "collision_rate": mean_at_done(info["episode_collided"]),
+        "out_of_bounds_rate": mean_at_done(info["episode_out_of_bounds"]),
+    }
+    for key in ("prey_left", "material_left"):
+        if key in info:
+            stats[key] = mean_at_done(info[key])
+    return stats

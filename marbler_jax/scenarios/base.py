@@ -1,0 +1,314 @@
+"""What every scenario shares: its config, MARBLER's discrete waypoint actions, spawn samplers.
+
+A scenario is a small object with pure functions; the env core (:mod:`marbler_jax.env`) owns the
+control loop, violations, the step counter and auto-reset. To write one, subclass
+:class:`Scenario`, declare a frozen ``Config`` dataclass (subclass of :class:`ScenarioConfig`) and
+implement ``reset``, ``goals``, ``update``, ``observe`` (and optionally ``metrics``,
+``render_info``). ``goals``, ``update`` and ``observe`` take numpy *or* JAX arrays (use
+``xp = namespace(...)`` and no JAX-only calls), so the numpy deployment bundle runs them as is.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import typing
+from typing import Any, ClassVar
+
+import numpy as np
+
+from marbler_jax._xp import namespace
+
+# MARBLER's discrete actions: 0 left (-x), 1 right (+x), 2 "up" (-y), 3 "down" (+y), 4 no action.
+ACTION_NAMES = ("left", "right", "up", "down", "no_action")
+BARRIERS = ("safe", "default", "none", "si", "si2", "si_boundary")
+
+
+@dataclasses.dataclass(frozen=True)
+class ScenarioConfig:
+    """Settings shared by every scenario (MARBLER ``config.yaml`` names where MARBLER has one).
+
+    Attributes:
+        max_episode_steps: horizon; an episode ends when the step counter exceeds it, so a full
+            episode has ``max_episode_steps + 1`` steps (as in MARBLER).
+        update_frequency: simulator ticks (0.033 s) per env step.
+        control_period: the controller and barrier are recomputed every this many ticks and held
+            in between. The default 1 is what runs on the real Robotarium (MARBLER's
+            ``robotarium: True``): training then sees exactly the deployed closed loop, and the
+            certificate keeps robots apart (zero collisions over thousands of random episodes).
+            15 reproduces MARBLER's training (``robotarium: False``): the held command turns robots
+            by up to 90 degrees between refreshes, so collisions and boundary violations occur.
+        barrier_certificate: ``"safe"`` (MARBLER default: certificate2, radius 0.2), ``"default"``
+            (certificate, radius 0.17), ``"none"``, or an SI kind of :mod:`marbler_jax.cbf`.
+        cbf_iterations: solver sweeps of the barrier (``None``: 8 + 2N, which matches every golden
+            rps case of the MARBLER certificate at N = 4; see
+            :func:`marbler_jax.cbf.default_iterations` for the budget that matches arbitrary,
+            overlapping configurations at any N).
+        penalize_violations: end the step at the first collision / boundary tick, give every agent
+            the scenario's violation reward and end the episode (MARBLER).
+        physics: physics preset name (``"robotarium"``, ``"marbler"``, ``"rps2024"``).
+        zero_reset_obs: return all-zero observations from ``reset`` as MARBLER does (a bug kept
+            only as a switch for reproducing the paper; default False returns the real observation).
+        LEFT, RIGHT, UP, DOWN: waypoint clamp box (UP is the *minimum* y, as in MARBLER).
+    """
+
+    max_episode_steps: int = 50
+    update_frequency: int = 29
+    control_period: int = 1
+    barrier_certificate: str = "safe"
+    cbf_iterations: int | None = None
+    penalize_violations: bool = True
+    physics: str = "robotarium"
+    zero_reset_obs: bool = False
+    LEFT: float = -1.4
+    RIGHT: float = 1.4
+    UP: float = -0.9
+    DOWN: float = 0.9
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` naming the bad value and what is allowed."""
+        _positive_int(self, "max_episode_steps", "update_frequency", "control_period")
+        if self.barrier_certificate not in BARRIERS:
+            raise ValueError(f"barrier_certificate={self.barrier_certificate!r} is not one of {list(BARRIERS)}")
+        if self.cbf_iterations is not None:
+            _positive_int(self, "cbf_iterations")
+        from marbler_jax import physics
+
+        physics.get_params(self.physics)
+        x_min, x_max, y_min, y_max = physics.get_params(self.physics).arena
+        if not (x_min <= self.LEFT < self.RIGHT <= x_max and y_min <= self.UP < self.DOWN <= y_max):
+            raise ValueError(
+                f"waypoint box LEFT={self.LEFT}, RIGHT={self.RIGHT}, UP={self.UP}, DOWN={self.DOWN} must lie "
+                f"inside the arena [{x_min}, {x_max}] x [{y_min}, {y_max}] with LEFT < RIGHT and UP < DOWN"
+            )
+
+
+def _positive_int(config, *names):
+    for name in names:
+        value = getattr(config, name)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+
+
+def build_config(config_cls: type[ScenarioConfig], overrides: dict[str, Any]) -> ScenarioConfig:
+    """``config_cls(**overrides)`` with clear errors for unknown keys and wrong types, then validated."""
+    fields = {f.name: f for f in dataclasses.fields(config_cls)}
+    unknown = sorted(set(overrides) - set(fields))
+    if unknown:
+        raise ValueError(
+            f"unknown config key(s) {unknown} for {config_cls.__name__}; valid keys: {sorted(fields)}"
+        )
+    hints = typing.get_type_hints(config_cls)
+    clean = {}
+    for name, value in overrides.items():
+        clean[name] = _coerce(name, value, hints[name])
+    config = config_cls(**clean)
+    config.validate()
+    return config
+
+
+def _coerce(name: str, value: Any, hint: Any) -> Any:
+    """Check ``value`` against a simple type hint (bool, int, float, str, tuple, optional)."""
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
+        if value is None and type(None) in args:
+            return None
+        inner = [a for a in args if a is not type(None)]
+        return _coerce(name, value, inner[0])
+    if hint is bool:
+        if isinstance(value, (bool, np.bool_)):
+            return bool(value)
+        raise ValueError(f"{name} must be true or false, got {value!r}")
+    if hint is int:
+        if isinstance(value, (bool, np.bool_)) or not float(value).is_integer():
+            raise ValueError(f"{name} must be an integer, got {value!r}")
+        return int(value)
+    if hint is float:
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
+            raise ValueError(f"{name} must be a number, got {value!r}")
+        if not math.isfinite(float(value)):
+            raise ValueError(f"{name} must be finite, got {value!r}")
+        return float(value)
+    if hint is str:
+        if not isinstance(value, str):
+            raise ValueError(f"{name} must be a string, got {value!r}")
+        return value
+    if origin is tuple:
+        return tuple(float(v) for v in value)
+    return value
+
+
+class Scenario:
+    """Base class of a scenario: static config plus pure functions of arrays.
+
+    Subclasses set ``name``, ``Config``, ``violation_reward``, ``shared_reward`` and implement the
+    methods below. Shapes: ``poses [N, 3]``, ``actions [N]`` int, ``goals [N, 2]``,
+    ``rewards [N]``, ``obs [N, obs_dim]``. ``state`` is the scenario's own pytree
+    (a ``flax.struct.dataclass``).
+    """
+
+    name: ClassVar[str]
+    Config: ClassVar[type[ScenarioConfig]]
+    violation_reward: ClassVar[float] = -5.0
+    shared_reward: ClassVar[bool] = True  # team metric = rewards[0] if shared, else sum over agents
+
+    def __init__(self, config: ScenarioConfig):
+        self.config = config
+
+    # --- sizes -------------------------------------------------------------------------------
+    @property
+    def num_agents(self) -> int:
+        raise NotImplementedError
+
+    @property
+    def num_actions(self) -> int:
+        return 5
+
+    @property
+    def obs_dim(self) -> int:
+        raise NotImplementedError
+
+    # --- dynamics ----------------------------------------------------------------------------
+    @property
+    def obs_bound(self) -> float:
+        """A bound on ``|obs|`` for the adapters' Box spaces (positions, markers, small counts)."""
+        return 10.0
+
+    def reset(self, key) -> tuple[Any, Any]:
+        """``(poses [N, 3], state)`` of a new episode (JAX only)."""
+        raise NotImplementedError
+
+    def step_sizes(self, poses, state):
+        """Waypoint offset per agent ``[N]`` [m]; default ``config.step_dist`` for everyone."""
+        xp = namespace(poses)
+        return xp.full(poses.shape[:-1], self.config.step_dist, dtype=poses.dtype)
+
+    def goals(self, poses, state, actions):
+        """Waypoints ``[N, 2]`` from the poses at the start of the step (MARBLER's rule)."""
+        return waypoints(self.config, poses, self.move_actions(actions), self.step_sizes(poses, state))
+
+    def move_actions(self, actions):
+        """The movement part (0..4) of each agent's action."""
+        return actions
+
+    def update(self, poses, state, actions):
+        """Task events after the robots moved: ``(state, rewards [N], terminated)``."""
+        raise NotImplementedError
+
+    def observe(self, poses, state):
+        """Observations ``[N, obs_dim]`` (float)."""
+        raise NotImplementedError
+
+    def observation_state(self, before, after):
+        """The scenario state the step's observation shows (``after`` by default).
+
+        MARBLER builds observations *before* it applies the step's task events, so scenarios whose
+        observation shows event state (loads, captures) return ``before`` here to stay faithful.
+        """
+        return after
+
+    def metrics(self, state) -> dict[str, Any]:
+        """Scalar paper metrics of the current episode (e.g. ``prey_left``)."""
+        return {}
+
+    def render_layers(self, state) -> list[dict]:
+        """Extra drawing for :func:`marbler_jax.render.render_frame` (goals, zones, ...)."""
+        return []
+
+    def team_reward(self, rewards):
+        """The per-step reward MARBLER's evaluation reports: ``rewards[0]`` if shared, else the sum."""
+        xp = namespace(rewards)
+        return rewards[..., 0] if self.shared_reward else xp.sum(rewards, axis=-1)
+
+
+def waypoints(config, poses, moves, step):
+    """MARBLER's action -> waypoint rule.
+
+    From the current position, action 0 moves -x (``max(x - d, LEFT)``), 1 +x (``min(x + d, RIGHT)``),
+    2 -y (``max(y - d, UP)``), 3 +y (``min(y + d, DOWN)``), 4 stays; the coordinate that does not move
+    is clamped into the box on both sides.
+    """
+    xp = namespace(poses)
+    x, y = poses[..., 0], poses[..., 1]
+    x_rest = xp.clip(x, config.LEFT, config.RIGHT)
+    y_rest = xp.clip(y, config.UP, config.DOWN)
+    gx = xp.where(moves == 0, xp.maximum(x - step, config.LEFT),
+                  xp.where(moves == 1, xp.minimum(x + step, config.RIGHT), x_rest))
+    gy = xp.where(moves == 2, xp.maximum(y - step, config.UP),
+                  xp.where(moves == 3, xp.minimum(y + step, config.DOWN), y_rest))
+    return xp.stack([gx, gy], axis=-1)
+
+
+def grid_size(spacing: float, width: float, height: float) -> tuple[int, int]:
+    """``(Xn, Yn)`` of rps's ``generate_initial_conditions`` grid (float floor, as numpy does)."""
+    return int(math.floor(width / spacing)), int(math.floor(height / spacing))
+
+
+def grid_capacity(spacing: float, width: float, height: float) -> int:
+    """How many robots the rps grid sampler can place (it asserts ``Xn * Yn > N``)."""
+    nx, ny = grid_size(spacing, width, height)
+    return nx * ny - 1 if nx and ny else 0
+
+
+def grid_positions(key, n: int, spacing: float, width: float, height: float):
+    """JAX port of rps ``generate_initial_conditions`` positions: ``[n, 2]``.
+
+    Draws ``n`` distinct cells ``c`` from ``{1, ..., Xn*Yn}`` and places them at
+    ``((c // Yn) * spacing - width/2, (c % Yn) * spacing - height/2)`` -- the same distribution
+    as rps (cell 0 is never used, cell ``Xn*Yn`` is), with JAX randomness.
+    """
+    nx, ny = grid_size(spacing, width, height)
+    cells = distinct_indices(key, n, nx * ny) + 1
+    x = (cells // ny) * spacing - width / 2
+    y = (cells % ny) * spacing - height / 2
+    import jax.numpy as jnp
+
+    return jnp.stack([x, y], axis=-1).astype(jnp.float32)
+
+
+def distinct_indices(key, n: int, m: int):
+    """``n`` distinct integers drawn uniformly (in random order) from ``range(m)``: ``[n]`` int32.
+
+    The positions of the ``n`` smallest of ``m`` i.i.d. uniforms, in increasing order: a uniformly
+    random ordered ``n``-subset without a sort (cheaper than ``jax.random.choice(replace=False)`` for small ``n``,
+    which matters because auto-reset evaluates ``reset`` on every step).
+    """
+    import jax
+    import jax.numpy as jnp
+
+    keys = jax.random.uniform(key, (m,))
+    if m <= 64:  # rank each key by pairwise comparison (fuses well), take ranks 0..n-1
+        rank = jnp.sum(keys[None, :] < keys[:, None], axis=1)
+        return jnp.argmax(rank[None, :] == jnp.arange(n)[:, None], axis=1).astype(jnp.int32)
+    cells = jnp.arange(m)
+    picks = []
+    for _ in range(n):
+        pick = jnp.argmin(keys)
+        picks.append(pick)
+        keys = jnp.where(cells == pick, jnp.inf, keys)
+    return jnp.stack(picks).astype(jnp.int32)
+
+
+def check_capacity(name: str, n: int, spacing: float, width: float, height: float, what: str = "robots"):
+    """Raise a clear error when the spawn grid cannot hold ``n`` items."""
+    capacity = grid_capacity(spacing, width, height)
+    if n > capacity:
+        raise ValueError(
+            f"{name}: cannot place {n} {what} -- the spawn grid (spacing {spacing} m over "
+            f"{width:.2f} x {height:.2f} m) holds at most {capacity}"
+        )
+
+
+def nearest_others(poses, k: int):
+    """Indices ``[N, k]`` of each robot's ``k`` other robots: index order when ``k >= N - 1``
+    (what MARBLER does), else the nearest ``k`` by distance, nearest first."""
+    xp = namespace(poses)
+    n = poses.shape[-2]
+    others = np.array([[j for j in range(n) if j != i] for i in range(n)], dtype=np.int32).reshape(n, n - 1)
+    if k >= n - 1:
+        return xp.asarray(others)
+    d = poses[..., :, None, :2] - poses[..., None, :, :2]
+    dist = xp.sum(d * d, axis=-1)
+    dist = xp.take_along_axis(dist, xp.asarray(others), axis=-1)
+    order = xp.argsort(dist, axis=-1)[..., :k]
+    return xp.take_along_axis(xp.asarray(others), order, axis=-1)

@@ -1,0 +1,170 @@
+"""Load MARBLER golden rollouts (``shared/golden/rollouts``) into marbler-jax states and replay them."""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import marbler_jax
+from marbler_jax import physics
+from tests.conftest import golden_path
+
+TAGS = [f"s{s}_e{e}" for s in range(3) for e in range(2)]
+
+
+@dataclass
+class Episode:
+    tag: str
+    config: dict
+    meta: dict
+    data: dict  # arrays of this episode, keys without the tag prefix
+
+    @property
+    def steps(self) -> int:
+        return len(self.data["actions"])
+
+
+def load_episodes(scenario_file: str) -> list[Episode]:
+    raw = np.load(golden_path(f"rollouts/{scenario_file}.npz"))
+    meta = json.loads(str(raw["meta"]))
+    episodes = []
+    for ep in meta["episodes"]:
+        tag = ep["tag"]
+        data = {k[len(tag) + 1:]: raw[k] for k in raw.files if k.startswith(tag + "_")}
+        episodes.append(Episode(tag, meta["config"], ep, data))
+    return episodes
+
+
+def replay(env, state, episode: Episode, build_velocity_check=True):
+    """Step ``env`` (float64) through the episode's actions. Returns per-step arrays and the first
+    step whose controller refresh disagrees with MARBLER's recorded (loose-QP) velocities."""
+    step = jax.jit(env.step_env)
+    vel_fn = jax.jit(lambda p, g: physics.threshold(env.params, env.velocities(p, g)))
+    goals_fn = jax.jit(env.scenario.goals)
+    d = episode.data
+    iter_poses = np.swapaxes(d["iter_poses"], -1, -2)
+    iter_vels = np.swapaxes(d["iter_vels"], -1, -2)
+    index = d["iter_index"]
+    out = {"poses": [], "rewards": [], "dones": [], "obs": [], "info": []}
+    divergence = None
+    for t in range(episode.steps):
+        actions = jnp.asarray(d["actions"][t], jnp.int32)
+        if divergence is None and build_velocity_check:
+            start_pose = jnp.asarray(iter_poses[index[t] - 1])
+            goals = goals_fn(start_pose, state.scenario, actions)
+            for j in range(index[t], index[t + 1]):
+                if (j - index[t]) % env.config.control_period == 0:
+                    ours = np.asarray(vel_fn(jnp.asarray(iter_poses[j - 1]), goals))
+                    if np.abs(ours - iter_vels[j]).max() > 1e-7:
+                        divergence = t
+                        break
+        obs, state, rewards, done, info = step(jax.random.PRNGKey(0), state, actions)
+        out["poses"].append(np.asarray(state.poses))
+        out["rewards"].append(np.asarray(rewards))
+        out["dones"].append(bool(done))
+        out["obs"].append(np.asarray(obs))
+        out["info"].append(jax.tree_util.tree_map(np.asarray, info))
+    return {k: (np.stack(v) if k not in ("info",) else v) for k, v in out.items()}, divergence
+
+
+def golden_env(name: str, episode: Episode, **overrides):
+    """The scenario with MARBLER's settings: ``marbler`` physics, zero reset obs, its config keys."""
+    return marbler_jax.make(name, physics="marbler", zero_reset_obs=True, **overrides)
+
+
+def base_state(env, poses, scenario_state):
+    from marbler_jax.env import EnvState
+
+    return EnvState(poses=jnp.asarray(poses, jnp.float64), scenario=scenario_state, step=jnp.int32(0),
+                    episode_return=jnp.float64(0), collided=jnp.bool_(False), out_of_bounds=jnp.bool_(False))
+
+
+def recorded_velocities(env, episode: Episode, t: int) -> np.ndarray:
+    """MARBLER's command at each control refresh of step ``t``: ``[num_segments, N, 2]``.
+
+    Segments that MARBLER never reached (the step ended early on a violation) are zero.
+    """
+    d = episode.data
+    start, stop = d["iter_index"][t], d["iter_index"][t + 1]
+    vels = np.swapaxes(d["iter_vels"], -1, -2)
+    out = np.zeros((env.num_segments, env.num_agents, 2))
+    for s in range(env.num_segments):
+        j = start + s * env.config.control_period
+        if j < stop:
+            out[s] = vels[j]
+    return out
+
+
+def replay_recorded(env, state, episode: Episode):
+    """Closed-loop replay with MARBLER's recorded commands; returns per-step arrays."""
+    step = jax.jit(env.step_env)
+    out = {"poses": [], "rewards": [], "dones": [], "obs": [], "info": []}
+    for t in range(episode.steps):
+        vel = recorded_velocities(env, episode, t)
+        obs, state, rewards, done, info = step(jax.random.PRNGKey(0), state,
+                                               jnp.asarray(episode.data["actions"][t], jnp.int32), vel)
+        out["poses"].append(np.asarray(state.poses))
+        out["rewards"].append(np.asarray(rewards))
+        out["dones"].append(bool(done))
+        out["obs"].append(np.asarray(obs))
+        out["info"].append(jax.tree_util.tree_map(np.asarray, info))
+        if bool(done):
+            break
+    return {k: (np.stack(v) if k != "info" else v) for k, v in out.items()}
+
+
+# scenario file -> (our name, reset-state builder(episode, float dtype))
+def _simple(ep):
+    from marbler_jax.scenarios.simple_navigation import SimpleState
+
+    return SimpleState(goal=jnp.asarray(ep.meta["reset_state"]["goal_loc"][0], jnp.float64))
+
+
+def _pcp(ep):
+    from marbler_jax.scenarios.predator_capture_prey import PredatorCapturePreyState
+
+    rs = ep.meta["reset_state"]
+    return PredatorCapturePreyState(prey=jnp.asarray(rs["prey_loc"], jnp.float64),
+                                    sensed=jnp.asarray(rs["prey_sensed"]), captured=jnp.asarray(rs["prey_captured"]))
+
+
+def _warehouse(ep):
+    from marbler_jax.scenarios.warehouse import WarehouseState
+
+    return WarehouseState(loaded=jnp.asarray([a["loaded"] for a in ep.meta["reset_agents"]]))
+
+
+def _mt(ep):
+    from marbler_jax.scenarios.material_transport import MaterialTransportState
+
+    rs = ep.meta["reset_state"]
+    return MaterialTransportState(load=jnp.asarray([a["load"] for a in ep.meta["reset_agents"]], jnp.int32),
+                                  zone1=jnp.int32(rs["zone1_load"]), zone2=jnp.int32(rs["zone2_load"]),
+                                  messages=jnp.asarray(rs["messages"], jnp.int32))
+
+
+def _at(ep):
+    from marbler_jax.scenarios.arctic_transport import ArcticTransportState
+
+    rs = ep.meta["reset_state"]
+    agents = ep.meta["reset_agents"]
+    return ArcticTransportState(grid=jnp.asarray(rs["grid"], jnp.int32), goal_col=jnp.int32(rs["goal_loc"][1]),
+                                tile=jnp.asarray([a["pixel_type"] for a in agents], jnp.int32),
+                                reached=jnp.asarray([a["reached_goal"] for a in agents]))
+
+
+SCENARIO_FILES = {
+    "Simple": ("simple_navigation", _simple),
+    "PredatorCapturePrey": ("predator_capture_prey", _pcp),
+    "Warehouse": ("warehouse", _warehouse),
+    "MaterialTransport": ("material_transport", _mt),
+    "ArcticTransport": ("arctic_transport", _at),
+}
+
+
+def initial_state(env, name_file: str, episode: Episode):
+    builder = SCENARIO_FILES[name_file][1]
+    return base_state(env, np.swapaxes(episode.data["reset_poses"], 0, 1), builder(episode))
