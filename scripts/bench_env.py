@@ -1,0 +1,95 @@
+"""Benchmark the batched envs: env-steps/s via ``jit(scan(vmap(step)))`` with random actions.
+
+    python scripts/bench_env.py --out bench_out/env.json [--quick]
+
+For every scenario, batch in {1, 256, 4096}, barrier off / safe and control period 15 / 1:
+env-steps/s, agent-steps/s and compile time (measured separately). Also the cost per robot-tick of
+Warehouse with 4 and 20 robots (safe barrier, control period 15, batch 4096). Writes JSON and a
+Markdown table next to it.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from datetime import date
+from pathlib import Path
+
+import jax
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import marbler_jax  # noqa: E402
+from marbler_jax.rollout import make_rollout  # noqa: E402
+
+
+def measure(env, batch: int, steps: int, repeats: int = 3):
+    """(env-steps/s, compile seconds) of a jitted rollout of ``steps`` steps over ``batch`` envs."""
+    rollout = make_rollout(env, batch, steps)
+    t0 = time.perf_counter()
+    jax.block_until_ready(rollout(jax.random.PRNGKey(0)))
+    compile_s = time.perf_counter() - t0
+    best = float("inf")
+    for r in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(rollout(jax.random.PRNGKey(r + 1)))
+        best = min(best, time.perf_counter() - t0)
+    return batch * steps / best, compile_s
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", default="bench_out/env.json")
+    parser.add_argument("--quick", action="store_true", help="tiny grid (smoke test)")
+    parser.add_argument("--scenarios", default=",".join(marbler_jax.registered()))
+    args = parser.parse_args(argv)
+    batches = [1, 64] if args.quick else [1, 256, 4096]
+    settings = [("safe", 15), ("none", 15), ("safe", 1), ("none", 1)]
+    if args.quick:
+        settings = settings[:1]
+    rows = []
+    for name in args.scenarios.split(","):
+        for barrier, period in settings:
+            env = marbler_jax.make(name, barrier_certificate=barrier, control_period=period)
+            for batch in batches:
+                steps = 8 if args.quick else (20 if batch >= 256 else 50)
+                sps, compile_s = measure(env, batch, steps, repeats=1 if args.quick else 3)
+                rows.append(dict(scenario=name, barrier=barrier, control_period=period, batch=batch,
+                                 agents=env.num_agents, env_steps_per_s=sps, agent_steps_per_s=sps * env.num_agents,
+                                 compile_s=compile_s))
+                print(f"{name:22s} cbf={barrier:4s} period={period:2d} batch={batch:5d} "
+                      f"{sps:12,.0f} env-steps/s (compile {compile_s:.1f} s)", flush=True)
+    scaling = []
+    for n in ([4] if args.quick else [4, 20]):
+        env = marbler_jax.make("warehouse", n_agents=n, start_dist=0.3, control_period=15)
+        batch = 64 if args.quick else 4096
+        sps, _ = measure(env, batch, 8 if args.quick else 10, repeats=1 if args.quick else 3)
+        per_tick = 1e9 / (sps * n * env.config.update_frequency)
+        scaling.append(dict(scenario="warehouse", agents=n, batch=batch, env_steps_per_s=sps, ns_per_robot_tick=per_tick))
+        print(f"scaling warehouse N={n:2d}: {sps:12,.0f} env-steps/s, {per_tick:.2f} ns per robot-tick", flush=True)
+    result = dict(date=str(date.today()), jax=jax.__version__, backend=jax.default_backend(),
+                  machine=f"{platform.machine()}, {os.cpu_count()} CPU cores, {jax.default_backend()}",
+                  rows=rows, scaling=scaling)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(".tmp")
+    tmp.write_text(json.dumps(result, indent=2))
+    tmp.replace(out)
+    lines = [f"Machine: {result['machine']}; jax {result['jax']}; {result['date']}", "",
+             "| scenario | CBF | control period | batch | env-steps/s | agent-steps/s | compile s |",
+             "|---|---|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        lines.append(f"| {r['scenario']} | {r['barrier']} | {r['control_period']} | {r['batch']} | "
+                     f"{r['env_steps_per_s']:,.0f} | {r['agent_steps_per_s']:,.0f} | {r['compile_s']:.1f} |")
+    lines += ["", "| scaling (warehouse, safe CBF, period 15) | N | env-steps/s | ns per robot-tick |", "|---|---:|---:|---:|"]
+    for s in scaling:
+        lines.append(f"| batch {s['batch']} | {s['agents']} | {s['env_steps_per_s']:,.0f} | {s['ns_per_robot_tick']:.2f} |")
+    out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return result
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,139 @@
+"""Env core invariants: safety, determinism, batching, episode timing, auto-reset, input errors."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import marbler_jax
+from marbler_jax.rollout import make_rollout
+
+NAMES = marbler_jax.registered()
+
+
+@pytest.fixture(scope="module", params=NAMES)
+def env(request):
+    return marbler_jax.make(request.param)
+
+
+def test_registry_and_sizes():
+    assert NAMES == sorted(["simple_navigation", "predator_capture_prey", "warehouse", "material_transport",
+                            "arctic_transport"])
+    sizes = {n: (marbler_jax.make(n).num_agents, marbler_jax.make(n).obs_dim, marbler_jax.make(n).num_actions)
+             for n in NAMES}
+    # MARBLER's layouts: Simple 2(N+1); PCP 4 x 4; Warehouse 3 x 6; MT 9 (N = 4); AT 30
+    assert sizes == {"simple_navigation": (4, 10, 5), "predator_capture_prey": (4, 16, 5), "warehouse": (6, 18, 5),
+                     "material_transport": (4, 9, 20), "arctic_transport": (4, 30, 5)}
+    assert marbler_jax.make("PredatorCapturePrey").name == "predator_capture_prey"  # MARBLER alias
+
+
+def test_zero_collisions_and_no_nan_over_2000_random_episodes(env):
+    """Default settings (safe CBF, control every tick): random policies never collide."""
+    num_envs = 2048
+    rollout = make_rollout(env, num_envs, env.max_steps)
+    state, (rewards, done, info) = rollout(jax.random.PRNGKey(7))
+    episodes = int(done.sum()) + int((~done[-1]).sum())  # finished + the ones still running
+    assert episodes >= 2000
+    assert int(info["collisions"].sum()) == 0, f"{env.name}: {int(info['collisions'].sum())} collision steps"
+    assert bool(jnp.all(jnp.isfinite(rewards))) and bool(jnp.all(jnp.isfinite(state.poses)))
+    # boundary violations stay rare (no boundary barrier in MARBLER's certificate)
+    assert float(info["out_of_bounds"].sum()) / num_envs < 0.05
+
+
+def test_determinism_jit_and_vmap(env):
+    keys = jax.random.split(jax.random.PRNGKey(3), 3)
+    obs, state = jax.vmap(env.reset)(keys)
+    actions = jax.random.randint(jax.random.PRNGKey(4), (3, env.num_agents), 0, env.num_actions)
+    step = jax.jit(jax.vmap(env.step))
+    out_a = step(keys, state, actions)
+    out_b = step(keys, state, actions)
+    jax.tree_util.tree_map(np.testing.assert_array_equal, out_a, out_b)  # same key -> same result
+    looped = [env.step(keys[i], jax.tree_util.tree_map(lambda x: x[i], state), actions[i]) for i in range(3)]
+    for i in range(3):  # vmap == loop, jit == eager
+        np.testing.assert_allclose(out_a[0][i], looped[i][0], atol=1e-5)
+        np.testing.assert_allclose(out_a[1].poses[i], looped[i][1].poses, atol=1e-5)
+        np.testing.assert_allclose(out_a[2][i], looped[i][2], atol=1e-5)
+        assert bool(out_a[3][i]) == bool(looped[i][3])
+    obs2, _ = jax.vmap(env.reset)(keys)
+    np.testing.assert_array_equal(obs, obs2)
+    assert obs.dtype == jnp.float32 and obs.shape == (3, env.num_agents, env.obs_dim)
+
+
+def test_done_exactly_after_max_episode_steps_plus_one(env):
+    """With violations off and robots idle, the episode lasts max_episode_steps + 1 steps."""
+    quiet = marbler_jax.make(env.name, penalize_violations=False)
+    idle = jnp.full((quiet.num_agents,), 4 if quiet.num_actions == 5 else 16, jnp.int32)  # no_action
+    step = jax.jit(quiet.step)
+    obs, state = quiet.reset(jax.random.PRNGKey(0))
+    for t in range(quiet.max_steps):
+        key = jax.random.PRNGKey(t + 1)
+        obs, state, rewards, done, info = step(key, state, idle)
+        assert bool(done) == (t == quiet.max_steps - 1), f"{env.name}: done={bool(done)} at step {t + 1}"
+    # auto-reset: the info describes the finished episode, the state is a new episode
+    assert bool(info["returned_episode"]) and int(info["steps"]) == quiet.max_steps
+    assert int(state.step) == 0 and float(state.episode_return) == 0.0
+    new_obs, _ = quiet.reset(jax.random.split(jax.random.PRNGKey(quiet.max_steps))[1])
+    np.testing.assert_allclose(obs, new_obs)
+
+
+def test_violation_ends_episode_with_penalty():
+    env = marbler_jax.make("simple_navigation", barrier_certificate="none")
+    # two robots placed nose to nose: the first tick's check sees the collision
+    obs, state = env.reset(jax.random.PRNGKey(0))
+    poses = state.poses.at[1, :2].set(state.poses[0, :2] + jnp.array([0.1, 0.0]))
+    state = state.replace(poses=poses)
+    _, next_state, rewards, done, info = env.step_env(jax.random.PRNGKey(1), state, jnp.zeros(4, jnp.int32))
+    assert bool(done) and bool(info["collisions"]) and bool(info["violation"])
+    np.testing.assert_allclose(rewards, -5.0)
+    assert int(info["steps"]) == 1
+
+
+def test_capture_reward_and_termination_pcp():
+    env = marbler_jax.make("predator_capture_prey", num_prey=1, barrier_certificate="none")
+    obs, state = env.reset(jax.random.PRNGKey(0))
+    prey = jnp.array([[0.0, 0.0]])
+    # predator 0 on the prey (senses it), capture robot 2 next to it choosing "no_action" (captures)
+    poses = state.poses.at[0, :2].set(jnp.array([0.0, 0.3])).at[2, :2].set(jnp.array([0.1, -0.05]))
+    state = state.replace(poses=poses, scenario=state.scenario.replace(prey=prey))
+    actions = jnp.array([4, 1, 4, 1])
+    _, nxt, rewards, done, info = env.step_env(jax.random.PRNGKey(1), state, actions)
+    np.testing.assert_allclose(rewards, 1 + 5 - 0.05, atol=1e-6)  # sensed and captured in one step
+    assert bool(done) and int(info["prey_left"]) == 0
+
+
+@pytest.mark.parametrize("bad, message", [
+    (dict(unknown_key=1), "unknown config key"),
+    (dict(max_episode_steps=0), "max_episode_steps must be a positive integer"),
+    (dict(max_episode_steps=2.5), "max_episode_steps must be an integer"),
+    (dict(barrier_certificate="strong"), "barrier_certificate='strong' is not one of"),
+    (dict(physics="rps1999"), "unknown physics preset 'rps1999'"),
+    (dict(predator=20), "cannot place 22 robots"),
+    (dict(LEFT=-2.0), "waypoint box"),
+    (dict(penalize_violations="yes"), "penalize_violations must be true or false"),
+])
+def test_bad_config_is_rejected_clearly(bad, message):
+    with pytest.raises(ValueError, match=message):
+        marbler_jax.make("predator_capture_prey", **bad)
+
+
+def test_bad_scenario_and_actions_are_rejected_clearly():
+    with pytest.raises(ValueError, match=r"unknown scenario 'pacman'; registered scenarios: \['arctic_transport'"):
+        marbler_jax.make("pacman")
+    env = marbler_jax.make("simple_navigation")
+    obs, state = env.reset(jax.random.PRNGKey(0))
+    with pytest.raises(ValueError, match=r"actions must have shape \(4,\)"):
+        env.step(jax.random.PRNGKey(0), state, jnp.zeros(3, jnp.int32))
+    with pytest.raises(ValueError, match=r"actions must be in \[0, 5\), got \[0, 7, 0, 0\]"):
+        env.step(jax.random.PRNGKey(0), state, jnp.array([0, 7, 0, 0]))
+    with pytest.raises(ValueError, match="must be integers"):
+        env.step(jax.random.PRNGKey(0), state, jnp.zeros(4))
+
+
+def test_scaling_to_twenty_robots():
+    env = marbler_jax.make("warehouse", n_agents=20, start_dist=0.3)
+    rollout = make_rollout(env, 64, 30)
+    state, (rewards, done, info) = rollout(jax.random.PRNGKey(0))
+    assert env.obs_dim == 3 * 6 and int(info["collisions"].sum()) == 0
+    with pytest.raises(ValueError, match=r"number of robots must be in \[1, 50\]"):
+        marbler_jax.make("warehouse", n_agents=60, start_dist=0.1, num_neighbors=5)
