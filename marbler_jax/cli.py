@@ -1,9 +1,12 @@
 """The ``marbler-jax`` command line (also ``python -m marbler_jax``).
 
 Subcommands so far:
-    demo   -- batched swap rollout of Robotarium robots under a barrier certificate: prints
-              collisions, closest approach and throughput, saves a trajectory plot.
-    bench  -- run ``scripts/bench_cbf.py`` (barrier + integrator throughput).
+    demo     -- batched swap rollout of Robotarium robots under a barrier certificate: prints
+                collisions, closest approach and throughput, saves a trajectory plot.
+    rollout  -- batched random-policy rollout of a scenario: episode metrics, env-steps/s and
+                an optional GIF of the first env.
+    list     -- scenarios with their robots, observation/action sizes and default config.
+    bench    -- run ``scripts/bench_cbf.py`` (barrier + integrator throughput).
 """
 from __future__ import annotations
 
@@ -82,6 +85,80 @@ def _plot(trace, goals, params, path):
     plt.close(fig)
 
 
+def parse_overrides(pairs: list[str]) -> dict:
+    """``["key=value", ...]`` -> dict; values parsed as JSON when possible (numbers, true/false)."""
+    import json
+
+    out = {}
+    for pair in pairs or []:
+        if "=" not in pair:
+            raise ValueError(f"--set expects key=value, got {pair!r}")
+        key, value = pair.split("=", 1)
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
+def _rollout(args) -> int:
+    import jax
+    import numpy as np
+
+    import marbler_jax
+    from marbler_jax.rollout import episode_stats, make_rollout
+
+    env = marbler_jax.make(args.scenario, **parse_overrides(args.set))
+    rollout = make_rollout(env, args.envs, args.steps)
+    t0 = time.perf_counter()
+    jax.block_until_ready(rollout(jax.random.PRNGKey(args.seed)))
+    compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    state, traj = jax.block_until_ready(rollout(jax.random.PRNGKey(args.seed + 1)))
+    run_s = time.perf_counter() - t0
+    stats = episode_stats(traj)
+    print(f"{env!r}: {args.envs} envs x {args.steps} steps, random policy")
+    print(f"  compile {compile_s:.1f} s, run {run_s:.2f} s = {args.envs * args.steps / run_s:,.0f} env-steps/s")
+    print("  finished episodes: " + ", ".join(f"{k} {v:.3f}" for k, v in stats.items()))
+    if args.gif:
+        from marbler_jax.render import render_frame
+        import imageio.v2 as imageio
+
+        step = jax.jit(env.step)
+        obs, s = env.reset(jax.random.PRNGKey(args.seed))
+        frames = [render_frame(env, jax.device_get(s), step=0, reward=0.0)]
+        key = jax.random.PRNGKey(args.seed + 2)
+        for t in range(env.max_steps):
+            key, k_act, k_step = jax.random.split(key, 3)
+            actions = jax.random.randint(k_act, (env.num_agents,), 0, env.num_actions)
+            obs, s_next, rewards, done, info = step(k_step, s, actions)
+            shown = s_next if not bool(done) else s
+            frames.append(render_frame(env, jax.device_get(shown), step=t + 1, reward=float(info["episode_return"])))
+            s = s_next
+            if bool(done):
+                break
+        Path(args.gif).parent.mkdir(parents=True, exist_ok=True)
+        imageio.mimsave(args.gif, np.stack(frames), duration=0.25, loop=0)
+        print(f"  GIF of env 0 ({len(frames)} frames): {args.gif}")
+    return 0
+
+
+def _list(args) -> int:
+    import dataclasses
+
+    import marbler_jax
+    from marbler_jax.registry import scenario_class
+
+    for name in marbler_jax.registered():
+        env = marbler_jax.make(name)
+        print(f"{name}: {env.num_agents} robots, obs_dim {env.obs_dim}, {env.num_actions} actions, "
+              f"{env.max_steps} steps per episode")
+        if args.verbose:
+            for field in dataclasses.fields(scenario_class(name).Config):
+                print(f"    {field.name} = {getattr(env.config, field.name)!r}")
+    return 0
+
+
 def _bench(args) -> int:
     script = Path(__file__).resolve().parents[1] / "scripts" / "bench_cbf.py"
     if not script.exists():
@@ -108,6 +185,17 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--seed", type=int, default=0)
     demo.add_argument("--plot", default="runs/demo/swap.png", help="trajectory PNG ('' to skip)")
     demo.set_defaults(func=_demo)
+    roll = sub.add_parser("rollout", help="batched random-policy rollout of a scenario")
+    roll.add_argument("scenario", help="scenario name (see `marbler-jax list`)")
+    roll.add_argument("--envs", type=int, default=1024)
+    roll.add_argument("--steps", type=int, default=200)
+    roll.add_argument("--seed", type=int, default=0)
+    roll.add_argument("--set", action="append", metavar="KEY=VALUE", help="config override (repeatable)")
+    roll.add_argument("--gif", default="", help="write a GIF of env 0 to this path")
+    roll.set_defaults(func=_rollout)
+    lst = sub.add_parser("list", help="scenarios, sizes and default config")
+    lst.add_argument("-v", "--verbose", action="store_true", help="print every config key")
+    lst.set_defaults(func=_list)
     bench = sub.add_parser("bench", help="barrier certificate and integrator throughput")
     bench.add_argument("--out", default="bench_out/cbf.json")
     bench.add_argument("--quick", action="store_true")

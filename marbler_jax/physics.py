@@ -185,22 +185,23 @@ def integrate(params: RobotariumParams, poses, velocities, ticks: int = 1):
             [x + step * xp.cos(theta), y + step * xp.sin(theta), wrap_angle(theta + dt * w)],
             axis=-1,
         )
-    delta = dt * w
-    half = delta / 2
+    return _held_pose(xp, x, y, theta, v, w, dt, ticks)
+
+
+def _held_pose(xp, x, y, theta, v, w, dt, k):
+    """Pose after ``k`` Euler ticks holding (v, w); ``k`` a number or an array broadcasting with x.
+
+    The heading advances by ``delta = dt w`` per tick, so
+    ``sum_{j<k} cos(theta + j delta) = sin(k delta / 2) / sin(delta / 2) * cos(theta + (k-1) delta / 2)``.
+    """
+    half = dt * w / 2
     small = xp.abs(half) < 1e-6
     safe_half = xp.where(small, xp.ones_like(half), half)
-    # sin(T h)/sin(h); series T (1 - (T^2 - 1) h^2 / 6) where h is tiny (avoids 0/0).
-    gain = xp.where(
-        small,
-        ticks * (1 - (ticks * ticks - 1) * half * half / 6),
-        xp.sin(ticks * safe_half) / xp.sin(safe_half),
-    )
-    mid = theta + (ticks - 1) * half
+    # sin(k h)/sin(h); series k (1 - (k^2 - 1) h^2 / 6) where h is tiny (avoids 0/0).
+    gain = xp.where(small, k * (1 - (k * k - 1) * half * half / 6), xp.sin(k * safe_half) / xp.sin(safe_half))
+    mid = theta + (k - 1) * half
     travel = dt * v * gain
-    return xp.stack(
-        [x + travel * xp.cos(mid), y + travel * xp.sin(mid), wrap_angle(theta + ticks * delta)],
-        axis=-1,
-    )
+    return xp.stack([x + travel * xp.cos(mid), y + travel * xp.sin(mid), wrap_angle(theta + 2 * k * half)], axis=-1)
 
 
 def trajectory(params: RobotariumParams, poses, velocities, ticks: int):
@@ -218,17 +219,7 @@ def trajectory(params: RobotariumParams, poses, velocities, ticks: int):
     poses = xp.asarray(poses, dtype=dtype)
     vel = threshold(params, xp.asarray(velocities, dtype=dtype))
     k = xp.arange(ticks + 1, dtype=dtype).reshape((ticks + 1,) + (1,) * (poses.ndim - 1))
-    x, y, theta = poses[..., 0], poses[..., 1], poses[..., 2]
-    v, w = vel[..., 0], vel[..., 1]
-    half = params.dt * w / 2
-    small = xp.abs(half) < 1e-6
-    safe_half = xp.where(small, xp.ones_like(half), half)
-    gain = xp.where(small, k * (1 - (k * k - 1) * half * half / 6), xp.sin(k * safe_half) / xp.sin(safe_half))
-    mid = theta + (k - 1) * half
-    travel = params.dt * v * gain
-    return xp.stack(
-        [x + travel * xp.cos(mid), y + travel * xp.sin(mid), wrap_angle(theta + 2 * k * half)], axis=-1
-    )
+    return _held_pose(xp, poses[..., 0], poses[..., 1], poses[..., 2], vel[..., 0], vel[..., 1], params.dt, k)
 
 
 def held_ticks(params: RobotariumParams, poses, velocities, ticks: int, stop_on_violation: bool = True):

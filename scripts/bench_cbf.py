@@ -109,6 +109,32 @@ def accuracy():
     return rows
 
 
+def sweep_study(n=20, batch=4096, sweeps=(16, 24, 48, 100), min_time=1.0):
+    """Speed and golden accuracy of ``si2`` (radius 0.2) at one N for several sweep budgets."""
+    golden = Path(__file__).resolve().parents[2] / "shared" / "golden" / "cbf" / "si_cert2_marbler_safe.npz"
+    rows = []
+    for iters in sweeps:
+        barrier = cbf.make_barrier("si2", safety_radius=0.2, iterations=iters)
+        x, u = problem(n, batch)
+        sec, _ = timed(jax.jit(barrier), u, x, min_time=min_time)
+        row = dict(n=n, batch=batch, sweeps=iters, team_solves_per_s=batch / sec)
+        if golden.exists():
+            data = np.load(golden)
+            g = {k[len(f"N{n}_"):]: v for k, v in data.items() if k.startswith(f"N{n}_")}
+            ok = g["status_tight"] == 1
+            with jax.enable_x64(True):
+                out = np.asarray(jax.jit(barrier)(jnp.asarray(np.swapaxes(g["u_nom"], -1, -2)),
+                                                   jnp.asarray(np.swapaxes(g["x"], -1, -2))))
+            ref = np.swapaxes(g["u_out_tight"], -1, -2)
+            err = np.abs(out - ref).max(axis=(1, 2))
+            tol = 5e-4 + 1e-3 * np.abs(ref).max(axis=(1, 2))
+            row["golden_match"] = float((err <= tol)[ok].mean())
+        rows.append(row)
+        print(f"sweep study si2 N={n} sweeps={iters:3d}: {row['team_solves_per_s']:10,.0f} team-solves/s, "
+              f"golden match {row.get('golden_match', float('nan')):.1%}", flush=True)
+    return rows
+
+
 def markdown(result):
     lines = [f"Machine: {result['machine']}; backend {result['backend']}; jax {result['jax']}; {result['date']}", "",
              "| kind | N | batch | sweeps | team-solves/s |", "|---|---:|---:|---:|---:|"]
@@ -117,6 +143,11 @@ def markdown(result):
     lines += ["", "| integrate N | batch | robot-ticks/s |", "|---:|---:|---:|"]
     for r in result["integrate"]:
         lines.append(f"| {r['n']} | {r['batch']} | {r['robot_ticks_per_s']:,.0f} |")
+    if result.get("sweep_study"):
+        lines += ["", "| si2 sweep study: N | batch | sweeps | team-solves/s | golden match |", "|---:|---:|---:|---:|---:|"]
+        for r in result["sweep_study"]:
+            lines.append(f"| {r['n']} | {r['batch']} | {r['sweeps']} | {r['team_solves_per_s']:,.0f} | "
+                         f"{r.get('golden_match', float('nan')):.1%} |")
     if result["accuracy"]:
         lines += ["", "| accuracy kind | N | cases | worst abs err | p99 abs err |", "|---|---:|---:|---:|---:|"]
         for r in result["accuracy"]:
@@ -129,7 +160,14 @@ def main(argv=None):
     parser.add_argument("--out", default="bench_out/cbf.json", help="JSON output path")
     parser.add_argument("--quick", action="store_true", help="small grid, short timings (smoke test)")
     parser.add_argument("--kinds", default="si2,si,si_boundary,uni,uni2,uni_boundary")
+    parser.add_argument("--sweep-study-only", action="store_true", help="only the si2 N=20 sweep study")
     args = parser.parse_args(argv)
+    if args.sweep_study_only:
+        rows = sweep_study()
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(dict(date=str(date.today()), jax=jax.__version__, sweep_study=rows), indent=2))
+        return rows
     kinds = args.kinds.split(",")
     ns = [2, 4] if args.quick else [2, 4, 8, 20, 50]
     batches = [1, 64] if args.quick else [1, 256, 4096]

@@ -137,3 +137,19 @@ def test_scaling_to_twenty_robots():
     assert env.obs_dim == 3 * 6 and int(info["collisions"].sum()) == 0
     with pytest.raises(ValueError, match=r"number of robots must be in \[1, 50\]"):
         marbler_jax.make("warehouse", n_agents=60, start_dist=0.1, num_neighbors=5)
+
+
+def test_spawn_sampler_is_uniform_over_ordered_cells():
+    from marbler_jax.scenarios.base import distinct_indices
+
+    draws = np.asarray(jax.jit(jax.vmap(lambda k: distinct_indices(k, 3, 6)))(
+        jax.random.split(jax.random.PRNGKey(0), 60000)))
+    assert all(len(set(row)) == 3 for row in draws)
+    # every ordered triple of distinct cells (120 of them) equally likely: chi-square, 119 dof
+    codes = draws[:, 0] * 36 + draws[:, 1] * 6 + draws[:, 2]
+    counts = np.bincount(codes, minlength=216)
+    observed = counts[counts > 0]
+    assert len(observed) == 120
+    expected = len(draws) / 120
+    chi2 = float(((observed - expected) ** 2 / expected).sum())
+    assert chi2 < 180, chi2  # p ~ 3e-4 under uniformity

@@ -267,26 +267,29 @@ def grid_positions(key, n: int, spacing: float, width: float, height: float):
 
 
 def distinct_indices(key, n: int, m: int):
-    """``n`` distinct integers drawn uniformly (in random order) from ``range(m)``: ``[n]`` int32.
+    """``n`` distinct integers drawn uniformly, in uniformly random order, from ``range(m)``: ``[n]``.
 
-    The positions of the ``n`` smallest of ``m`` i.i.d. uniforms, in increasing order: a uniformly
-    random ordered ``n``-subset without a sort (cheaper than ``jax.random.choice(replace=False)`` for small ``n``,
-    which matters because auto-reset evaluates ``reset`` on every step).
+    Floyd's algorithm (``n`` draws, ``O(n^2)`` compares) followed by a shuffle of the ``n`` picks,
+    instead of ``jax.random.choice(replace=False)``, which sorts ``m`` keys. This matters because
+    auto-reset evaluates ``reset`` on every step. The draw ``floor(u (j + 1))`` from a float32
+    uniform has a bias below 1e-5 for grids of up to 100 cells.
     """
     import jax
     import jax.numpy as jnp
 
-    keys = jax.random.uniform(key, (m,))
-    if m <= 64:  # rank each key by pairwise comparison (fuses well), take ranks 0..n-1
-        rank = jnp.sum(keys[None, :] < keys[:, None], axis=1)
-        return jnp.argmax(rank[None, :] == jnp.arange(n)[:, None], axis=1).astype(jnp.int32)
-    cells = jnp.arange(m)
+    if not 0 <= n <= m:
+        raise ValueError(f"cannot draw {n} distinct cells from {m}")
+    k_draw, k_shuffle = jax.random.split(key)
+    u = jax.random.uniform(k_draw, (n,))
     picks = []
-    for _ in range(n):
-        pick = jnp.argmin(keys)
-        picks.append(pick)
-        keys = jnp.where(cells == pick, jnp.inf, keys)
-    return jnp.stack(picks).astype(jnp.int32)
+    for i, j in enumerate(range(m - n, m)):
+        t = jnp.minimum(jnp.floor(u[i] * (j + 1)).astype(jnp.int32), j)
+        taken = jnp.any(jnp.stack(picks) == t) if picks else jnp.bool_(False)
+        picks.append(jnp.where(taken, j, t))
+    picks = jnp.stack(picks).astype(jnp.int32) if picks else jnp.zeros((0,), jnp.int32)
+    keys = jax.random.uniform(k_shuffle, (n,))
+    rank = jnp.sum(keys[None, :] < keys[:, None], axis=1)  # a random permutation of 0..n-1
+    return picks[rank]
 
 
 def check_capacity(name: str, n: int, spacing: float, width: float, height: float, what: str = "robots"):
