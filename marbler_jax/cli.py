@@ -6,6 +6,8 @@ Subcommands so far:
     rollout  -- batched random-policy rollout of a scenario: episode metrics, env-steps/s and
                 an optional GIF of the first env.
     list     -- scenarios with their robots, observation/action sizes and default config.
+    train    -- train an algorithm (IPPO so far) on a scenario and write a run folder.
+    quickstart -- the main job: train IPPO on simple_navigation, evaluate, plot, render a GIF.
     bench    -- run ``scripts/bench_cbf.py`` (barrier + integrator throughput).
 """
 from __future__ import annotations
@@ -159,6 +161,66 @@ def _list(args) -> int:
     return 0
 
 
+def _train(args) -> int:
+    from algorithms.driver import train
+
+    train(args.scenario, args.algo, int(float(args.total_steps)), args.seeds, args.out,
+          env_overrides=parse_overrides(args.set), hp=parse_overrides(args.hp))
+    print(f"run folder: {args.out}")
+    return 0
+
+
+def _quickstart(args) -> int:
+    from algorithms.driver import train
+
+    out = Path(args.out)
+    result = train("simple_navigation", "ippo", 300_000, 2, out, hp={"lr": 1e-3})
+    gif = out / "episode.gif"
+    _episode_gif(out, gif)
+    better = result["trained"]["return"] > result["random"]["return"]
+    print("\nquickstart outputs:")
+    for name in ("config.json", "metrics.jsonl", "learning_curve.png", "params.npz", "evaluation.json", "episode.gif"):
+        print(f"  {out / name}")
+    print("  (export to a Robotarium bundle is not built yet)")
+    return 0 if better else 1
+
+
+def _episode_gif(run: Path, gif: Path) -> None:
+    """GIF of one greedy episode of the run's first seed."""
+    import json
+
+    import imageio.v2 as imageio
+    import jax
+    import numpy as np
+
+    import marbler_jax
+    from algorithms.ippo import IPPOConfig, greedy_policy
+    from marbler_jax.render import render_frame
+
+    config = json.loads((run / "config.json").read_text())
+    env = marbler_jax.make(config["scenario"], **config["env"])
+    cfg = IPPOConfig(**config["algorithm"])
+    flat = np.load(run / "params.npz")
+    leaves = {k: v[0] for k, v in flat.items()}
+    params = {}
+    for path, value in leaves.items():
+        node = params
+        *parents, leaf = path.split("/")
+        for p in parents:
+            node = node.setdefault(p, {})
+        node[leaf] = value
+    act = jax.jit(greedy_policy(env, cfg, params))
+    step = jax.jit(env.step_env)
+    obs, state = env.reset(jax.random.PRNGKey(1))
+    frames = [render_frame(env, jax.device_get(state), step=0, reward=0.0)]
+    for t in range(env.max_steps):
+        obs, state, rewards, done, info = step(jax.random.PRNGKey(t), state, act(None, obs))
+        frames.append(render_frame(env, jax.device_get(state), step=t + 1, reward=float(info["episode_return"])))
+        if bool(done):
+            break
+    imageio.mimsave(gif, np.stack(frames), duration=0.15, loop=0)
+
+
 def _bench(args) -> int:
     script = Path(__file__).resolve().parents[1] / "scripts" / "bench_cbf.py"
     if not script.exists():
@@ -196,6 +258,18 @@ def build_parser() -> argparse.ArgumentParser:
     lst = sub.add_parser("list", help="scenarios, sizes and default config")
     lst.add_argument("-v", "--verbose", action="store_true", help="print every config key")
     lst.set_defaults(func=_list)
+    tr = sub.add_parser("train", help="train an algorithm on a scenario (writes a run folder)")
+    tr.add_argument("--scenario", default="simple_navigation")
+    tr.add_argument("--algo", default="ippo", choices=["ippo"])
+    tr.add_argument("--total-steps", default="3e5", help="env steps per seed (e.g. 5e6)")
+    tr.add_argument("--seeds", type=int, default=1, help="seeds trained in one vmapped program")
+    tr.add_argument("--out", default="runs/train")
+    tr.add_argument("--set", action="append", metavar="KEY=VALUE", help="env config override (repeatable)")
+    tr.add_argument("--hp", action="append", metavar="KEY=VALUE", help="algorithm setting (repeatable)")
+    tr.set_defaults(func=_train)
+    qs = sub.add_parser("quickstart", help="the main job: train, evaluate, plot and render (a few minutes)")
+    qs.add_argument("--out", default="runs/quickstart")
+    qs.set_defaults(func=_quickstart)
     bench = sub.add_parser("bench", help="barrier certificate and integrator throughput")
     bench.add_argument("--out", default="bench_out/cbf.json")
     bench.add_argument("--quick", action="store_true")

@@ -34,3 +34,22 @@ def test_bad_input_is_reported(capsys):
     assert "unknown config key(s) ['no_such_key']" in err and "valid keys" in err
     assert main(["rollout", "pacman"]) == 2
     assert parse_overrides(["a=1", "b=true", "c=safe"]) == {"a": 1, "b": True, "c": "safe"}
+
+
+def test_train_writes_a_complete_run_folder(tmp_path):
+    import json
+
+    out = tmp_path / "run"
+    code = main(["train", "--scenario", "warehouse", "--total-steps", "2048", "--seeds", "2", "--out", str(out),
+                 "--hp", "num_envs=16", "--hp", "num_steps=16", "--hp", "hidden=32"])
+    assert code == 0
+    for name in ("config.json", "metrics.jsonl", "learning_curve.png", "params.npz", "evaluation.json"):
+        assert (out / name).exists(), name
+    assert not list(out.glob("*.tmp*"))  # atomic writes leave no temporaries
+    config = json.loads((out / "config.json").read_text())
+    assert config["algo"] == "ippo" and config["algorithm"]["total_timesteps"] == 2048
+    lines = (out / "metrics.jsonl").read_text().splitlines()
+    assert len(lines) == 2048 // (16 * 16)
+    evaluation = json.loads((out / "evaluation.json").read_text())
+    assert set(evaluation) >= {"trained", "random", "train_seconds"}
+    assert main(["train", "--hp", "no_such=1", "--total-steps", "100", "--out", str(out)]) == 2

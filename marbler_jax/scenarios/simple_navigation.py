@@ -19,7 +19,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from marbler_jax._xp import namespace
-from marbler_jax.scenarios.base import Scenario, ScenarioConfig, check_capacity, grid_positions
+from marbler_jax.scenarios.base import Scenario, ScenarioConfig, check_capacity, grid_positions, nearest_others
 
 
 @dataclasses.dataclass(frozen=True)
@@ -96,7 +96,6 @@ class SimpleNavigation(Scenario):
         xp = namespace(poses)
         n = self.num_agents
         xy = poses[..., :2]
-        others = [xp.concatenate([xy[..., :i, :], xy[..., i + 1:, :]], axis=-2).reshape(xy.shape[:-2] + (-1,))
-                  for i in range(n)]
-        rows = [xp.concatenate([xy[..., i, :], others[i], state.goal], axis=-1) for i in range(n)]
-        return xp.stack(rows, axis=-2)
+        others = xy[..., nearest_others(poses, n - 1), :].reshape(xy.shape[:-2] + (n, 2 * (n - 1)))
+        goal = xp.broadcast_to(state.goal[..., None, :], xy.shape[:-2] + (n, 2))
+        return xp.concatenate([xy, others, goal], axis=-1)

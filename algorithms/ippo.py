@@ -1,0 +1,181 @@
+"""IPPO: independent PPO, one actor-critic per agent on its own observation (decentralised critic).
+
+The whole training run is one jitted function ``train(key) -> (params, metrics)`` built by
+:func:`make_train`; ``jax.vmap(train)`` over keys trains several seeds in one program. Each update
+rolls out ``num_steps`` steps of ``num_envs`` auto-resetting envs, computes per-agent GAE, then runs
+``update_epochs`` epochs of clipped-surrogate SGD over ``num_minibatches`` minibatches (Adam,
+global-norm clipping, linear learning-rate annealing). Agents share parameters (with an agent-ID
+one-hot appended to each observation) unless ``shared=False``, in which case every agent has its own
+network, vmapped over agents.
+
+Metrics per update (arrays ``[num_updates]``): ``return`` (mean team return of the episodes that
+finished during the rollout; NaN if none did), ``length``, ``collision_rate``, ``out_of_bounds_rate``,
+``episodes``, ``loss``, ``entropy``.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from algorithms.networks import ActorCritic, apply_agents, init_agents, with_agent_ids
+
+
+@dataclasses.dataclass(frozen=True)
+class IPPOConfig:
+    total_timesteps: int = 500_000   # env steps (one env step moves every agent)
+    num_envs: int = 64
+    num_steps: int = 64              # rollout length per update
+    update_epochs: int = 4
+    num_minibatches: int = 4
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip_eps: float = 0.2
+    ent_coef: float = 0.01
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    lr: float = 3e-4
+    anneal_lr: bool = True
+    hidden: int = 128
+    layers: int = 2
+    activation: str = "tanh"
+    shared: bool = True
+    agent_ids: bool = True
+
+    @property
+    def num_updates(self) -> int:
+        return max(1, self.total_timesteps // (self.num_envs * self.num_steps))
+
+    def validate(self) -> None:
+        for name in ("total_timesteps", "num_envs", "num_steps", "update_epochs", "num_minibatches", "hidden", "layers"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if (self.num_envs * self.num_steps) % self.num_minibatches:
+            raise ValueError(f"num_envs * num_steps = {self.num_envs * self.num_steps} must be divisible by "
+                             f"num_minibatches = {self.num_minibatches}")
+
+
+def policy_inputs(cfg: IPPOConfig, obs):
+    return with_agent_ids(obs) if cfg.agent_ids and cfg.shared else obs
+
+
+def make_train(env, cfg: IPPOConfig):
+    """``train(key) -> (params, metrics)`` for ``env`` (a :class:`marbler_jax.env.MarblerEnv`)."""
+    cfg.validate()
+    network = ActorCritic(env.num_actions, cfg.hidden, cfg.layers, cfg.activation)
+    n_agents = env.num_agents
+    batch = cfg.num_envs * cfg.num_steps
+    minibatch = batch // cfg.num_minibatches
+
+    def schedule(count):
+        frac = 1.0 - (count // (cfg.num_minibatches * cfg.update_epochs)) / cfg.num_updates
+        return cfg.lr * (frac if cfg.anneal_lr else 1.0)
+
+    tx = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(schedule, eps=1e-5))
+
+    def forward(params, obs):
+        return apply_agents(network, params, policy_inputs(cfg, obs), cfg.shared)
+
+    def train(key):
+        key, k_init, k_reset = jax.random.split(key, 3)
+        obs, state = jax.vmap(env.reset)(jax.random.split(k_reset, cfg.num_envs))
+        sample = policy_inputs(cfg, obs[0])[0]
+        params = init_agents(network, k_init, sample, n_agents, cfg.shared)
+        opt_state = tx.init(params)
+
+        def env_step(carry, key):
+            params, obs, state = carry
+            k_act, k_env = jax.random.split(key)
+            logits, value = forward(params, obs)                      # [E, N, A], [E, N]
+            actions = jax.random.categorical(k_act, logits)          # [E, N]
+            logp = jnp.take_along_axis(jax.nn.log_softmax(logits), actions[..., None], -1)[..., 0]
+            next_obs, state, rewards, done, info = jax.vmap(env.step)(
+                jax.random.split(k_env, cfg.num_envs), state, actions)
+            transition = dict(obs=obs, actions=actions, logp=logp, value=value, rewards=rewards, done=done,
+                              info={k: info[k] for k in ("episode_return", "steps", "episode_collided",
+                                                          "episode_out_of_bounds")})
+            return (params, next_obs, state), transition
+
+        def gae(traj, last_value):
+            def backward(carry, t):
+                next_value, next_adv = carry
+                not_done = 1.0 - t["done"][:, None].astype(jnp.float32)
+                delta = t["rewards"] + cfg.gamma * next_value * not_done - t["value"]
+                adv = delta + cfg.gamma * cfg.gae_lambda * not_done * next_adv
+                return (t["value"], adv), adv
+
+            _, adv = jax.lax.scan(backward, (last_value, jnp.zeros_like(last_value)), traj, reverse=True)
+            return adv, adv + traj["value"]
+
+        def loss_fn(params, mb):
+            logits, value = forward(params, mb["obs"])
+            logp_all = jax.nn.log_softmax(logits)
+            logp = jnp.take_along_axis(logp_all, mb["actions"][..., None], -1)[..., 0]
+            ratio = jnp.exp(logp - mb["logp"])
+            adv = (mb["adv"] - mb["adv"].mean()) / (mb["adv"].std() + 1e-8)
+            actor = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - cfg.clip_eps, 1 + cfg.clip_eps) * adv).mean()
+            v_clipped = mb["value"] + jnp.clip(value - mb["value"], -cfg.clip_eps, cfg.clip_eps)
+            critic = 0.5 * jnp.maximum((value - mb["target"]) ** 2, (v_clipped - mb["target"]) ** 2).mean()
+            entropy = -(jnp.exp(logp_all) * logp_all).sum(-1).mean()
+            return actor + cfg.vf_coef * critic - cfg.ent_coef * entropy, entropy
+
+        def update(carry, key):
+            params, opt_state, obs, state = carry
+            k_roll, k_perm = jax.random.split(key)
+            (params, obs, state), traj = jax.lax.scan(env_step, (params, obs, state),
+                                                      jax.random.split(k_roll, cfg.num_steps))
+            _, last_value = forward(params, obs)
+            adv, target = gae(traj, last_value)
+            data = dict(obs=traj["obs"], actions=traj["actions"], logp=traj["logp"], value=traj["value"],
+                        adv=adv, target=target)
+            data = jax.tree_util.tree_map(lambda x: x.reshape((batch,) + x.shape[2:]), data)
+
+            def epoch(carry, key):
+                params, opt_state = carry
+                perm = jax.random.permutation(key, batch)
+                shuffled = jax.tree_util.tree_map(lambda x: x[perm].reshape((cfg.num_minibatches, minibatch) + x.shape[1:]), data)
+
+                def sgd(carry, mb):
+                    params, opt_state = carry
+                    (loss, entropy), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, mb)
+                    updates, opt_state = tx.update(grads, opt_state, params)
+                    return (optax.apply_updates(params, updates), opt_state), (loss, entropy)
+
+                (params, opt_state), stats = jax.lax.scan(sgd, (params, opt_state), shuffled)
+                return (params, opt_state), stats
+
+            (params, opt_state), (loss, entropy) = jax.lax.scan(
+                epoch, (params, opt_state), jax.random.split(k_perm, cfg.update_epochs))
+            done = traj["done"]
+            count = done.sum()
+
+            def at_done(x):
+                return jnp.where(count > 0, jnp.sum(jnp.where(done, x, 0)) / jnp.maximum(count, 1), jnp.nan)
+
+            info = traj["info"]
+            metrics = dict(return_=at_done(info["episode_return"]), length=at_done(info["steps"]),
+                           collision_rate=at_done(info["episode_collided"]),
+                           out_of_bounds_rate=at_done(info["episode_out_of_bounds"]), episodes=count,
+                           loss=loss.mean(), entropy=entropy.mean())
+            return (params, opt_state, obs, state), metrics
+
+        (params, _, _, _), metrics = jax.lax.scan(update, (params, opt_state, obs, state),
+                                                  jax.random.split(key, cfg.num_updates))
+        metrics["return"] = metrics.pop("return_")
+        return params, metrics
+
+    return train
+
+
+def greedy_policy(env, cfg: IPPOConfig, params):
+    """``(key, obs [..., N, D]) -> actions [..., N]``: the argmax of the trained policy."""
+    network = ActorCritic(env.num_actions, cfg.hidden, cfg.layers, cfg.activation)
+
+    def act(key, obs):
+        del key
+        logits, _ = apply_agents(network, params, policy_inputs(cfg, obs), cfg.shared)
+        return jnp.argmax(logits, axis=-1).astype(jnp.int32)
+
+    return act

@@ -1,0 +1,40 @@
+"""IPPO learns, trains several seeds in one program, and supports per-agent parameters."""
+from __future__ import annotations
+
+import jax
+import numpy as np
+
+import marbler_jax
+from algorithms.ippo import IPPOConfig, greedy_policy, make_train
+from marbler_jax.rollout import episode_stats, make_rollout
+
+
+def test_ippo_learns_simple_navigation():
+    env = marbler_jax.make("simple_navigation")
+    cfg = IPPOConfig(total_timesteps=150_000, num_envs=64, num_steps=64, lr=1e-3)
+    params, metrics = jax.jit(make_train(env, cfg))(jax.random.PRNGKey(0))
+    returns = np.asarray(metrics["return"])
+    assert np.all(np.isfinite(np.asarray(metrics["loss"])))
+    _, random_traj = make_rollout(env, 256, env.max_steps * 2)(jax.random.PRNGKey(9))
+    _, greedy_traj = make_rollout(env, 256, env.max_steps * 2, greedy_policy(env, cfg, params))(jax.random.PRNGKey(9))
+    random_return = episode_stats(random_traj)["return"]
+    trained = episode_stats(greedy_traj)
+    print(f"IPPO simple_navigation: random {random_return:.1f}, trained greedy {trained['return']:.1f}, "
+          f"training curve {returns[0]:.1f} -> {returns[-1]:.1f}")
+    assert trained["return"] > random_return + 30, (random_return, trained["return"])
+    assert trained["collision_rate"] == 0.0
+
+
+def test_ippo_seeds_vmapped_and_unshared_parameters():
+    env = marbler_jax.make("material_transport")
+    cfg = IPPOConfig(total_timesteps=2 * 16 * 8, num_envs=16, num_steps=8, num_minibatches=2, update_epochs=1,
+                     hidden=32, shared=False)
+    params, metrics = jax.jit(jax.vmap(make_train(env, cfg)))(jax.random.split(jax.random.PRNGKey(1), 3))
+    kernel = params["params"]["actor"]["Dense_0"]["kernel"]
+    assert kernel.shape == (3, env.num_agents, env.obs_dim, 32)   # [seeds, agents, in, out]
+    assert metrics["loss"].shape == (3, cfg.num_updates)
+    shared_cfg = IPPOConfig(total_timesteps=16 * 8, num_envs=16, num_steps=8, num_minibatches=2, update_epochs=1,
+                            hidden=32)
+    shared_params, _ = jax.jit(make_train(env, shared_cfg))(jax.random.PRNGKey(2))
+    # one set for all agents, input = obs + agent-ID one-hot
+    assert shared_params["params"]["actor"]["Dense_0"]["kernel"].shape == (env.obs_dim + env.num_agents, 32)
