@@ -148,6 +148,17 @@ def wrap_angle(theta):
     return xp.arctan2(xp.sin(theta), xp.cos(theta))
 
 
+def _prepare(params, poses, velocities, ticks, minimum: int):
+    """Validate ``ticks``, pick the array namespace and common dtype, threshold the command."""
+    ticks = int(ticks)
+    if ticks < minimum:
+        raise ValueError(f"ticks must be >= {minimum}, got {ticks}")
+    xp = namespace(poses, velocities)
+    dtype = result_dtype(xp, poses, velocities)
+    poses = xp.asarray(poses, dtype=dtype)
+    return xp, poses, threshold(params, xp.asarray(velocities, dtype=dtype)), ticks
+
+
 def integrate(params: RobotariumParams, poses, velocities, ticks: int = 1):
     """Advance ``poses [..., N, 3]`` by ``ticks`` simulator ticks holding ``velocities [..., N, 2]``.
 
@@ -167,15 +178,9 @@ def integrate(params: RobotariumParams, poses, velocities, ticks: int = 1):
     Returns:
         ``[..., N, 3]`` poses after ``ticks`` ticks, theta in (-pi, pi].
     """
-    ticks = int(ticks)
-    if ticks < 0:
-        raise ValueError(f"ticks must be >= 0, got {ticks}")
-    xp = namespace(poses, velocities)
-    dtype = result_dtype(xp, poses, velocities)
-    poses = xp.asarray(poses, dtype=dtype)
+    xp, poses, vel, ticks = _prepare(params, poses, velocities, ticks, minimum=0)
     if ticks == 0:
         return poses
-    vel = threshold(params, xp.asarray(velocities, dtype=dtype))
     x, y, theta = poses[..., 0], poses[..., 1], poses[..., 2]
     v, w = vel[..., 0], vel[..., 1]
     dt = params.dt
@@ -211,14 +216,8 @@ def trajectory(params: RobotariumParams, poses, velocities, ticks: int):
     of :func:`integrate`, evaluated for all ``k`` at once (no sequential loop), so checks that rps
     runs at every tick (collisions, boundary) can be vectorized over the ticks of a control period.
     """
-    ticks = int(ticks)
-    if ticks < 1:
-        raise ValueError(f"ticks must be >= 1, got {ticks}")
-    xp = namespace(poses, velocities)
-    dtype = result_dtype(xp, poses, velocities)
-    poses = xp.asarray(poses, dtype=dtype)
-    vel = threshold(params, xp.asarray(velocities, dtype=dtype))
-    k = xp.arange(ticks + 1, dtype=dtype).reshape((ticks + 1,) + (1,) * (poses.ndim - 1))
+    xp, poses, vel, ticks = _prepare(params, poses, velocities, ticks, minimum=1)
+    k = xp.arange(ticks + 1, dtype=poses.dtype).reshape((ticks + 1,) + (1,) * (poses.ndim - 1))
     return _held_pose(xp, poses[..., 0], poses[..., 1], poses[..., 2], vel[..., 0], vel[..., 1], params.dt, k)
 
 
@@ -238,10 +237,8 @@ def held_ticks(params: RobotariumParams, poses, velocities, ticks: int, stop_on_
         ``(poses [..., N, 3], collided [...], out_of_bounds [...], distance [..., N])`` where the flags
         say whether a checked pre-tick pose violated, and ``distance`` is the path length driven [m].
     """
-    xp = namespace(poses, velocities)
-    dtype = result_dtype(xp, poses, velocities)
-    poses = xp.asarray(poses, dtype=dtype)
-    vel = threshold(params, xp.asarray(velocities, dtype=dtype))
+    xp, poses, vel, ticks = _prepare(params, poses, velocities, ticks, minimum=0)
+    dtype = poses.dtype
     n = poses.shape[-2]
     first, second = np.triu_indices(n, 1)
     x_min, x_max, y_min, y_max = params.arena
