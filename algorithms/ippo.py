@@ -62,7 +62,11 @@ def policy_inputs(cfg: IPPOConfig, obs):
 
 
 def make_train(env, cfg: IPPOConfig):
-    """``train(key) -> (params, metrics)`` for ``env`` (a :class:`marbler_jax.env.MarblerEnv`)."""
+    """``train(key) -> (params, metrics)`` for ``env`` (a :class:`marbler_jax.env.MarblerEnv`).
+
+    ``train.init(key) -> runner`` and ``train.run(runner, n) -> (runner, metrics)`` expose the same
+    run in chunks (for checkpointing and progress reporting).
+    """
     cfg.validate()
     network = ActorCritic(env.num_actions, cfg.hidden, cfg.layers, cfg.activation)
     n_agents = env.num_agents
@@ -78,94 +82,115 @@ def make_train(env, cfg: IPPOConfig):
     def forward(params, obs):
         return apply_agents(network, params, policy_inputs(cfg, obs), cfg.shared)
 
-    def train(key):
+    def init(key):
+        """Runner state ``(params, opt_state, obs, env_state, key, update)`` of a fresh run."""
         key, k_init, k_reset = jax.random.split(key, 3)
         obs, state = jax.vmap(env.reset)(jax.random.split(k_reset, cfg.num_envs))
         sample = policy_inputs(cfg, obs[0])[0]
         params = init_agents(network, k_init, sample, n_agents, cfg.shared)
-        opt_state = tx.init(params)
+        return dict(params=params, opt_state=tx.init(params), obs=obs, env_state=state, key=key,
+                    update=jnp.int32(0))
 
-        def env_step(carry, key):
-            params, obs, state = carry
-            k_act, k_env = jax.random.split(key)
-            logits, value = forward(params, obs)                      # [E, N, A], [E, N]
-            actions = jax.random.categorical(k_act, logits)          # [E, N]
-            logp = jnp.take_along_axis(jax.nn.log_softmax(logits), actions[..., None], -1)[..., 0]
-            next_obs, state, rewards, done, info = jax.vmap(env.step)(
-                jax.random.split(k_env, cfg.num_envs), state, actions)
-            transition = dict(obs=obs, actions=actions, logp=logp, value=value, rewards=rewards, done=done,
-                              info={k: info[k] for k in ("episode_return", "steps", "episode_collided",
-                                                          "episode_out_of_bounds")})
-            return (params, next_obs, state), transition
+    def env_step(carry, key):
+        params, obs, state = carry
+        k_act, k_env = jax.random.split(key)
+        logits, value = forward(params, obs)                      # [E, N, A], [E, N]
+        actions = jax.random.categorical(k_act, logits)          # [E, N]
+        logp = jnp.take_along_axis(jax.nn.log_softmax(logits), actions[..., None], -1)[..., 0]
+        next_obs, state, rewards, done, info = jax.vmap(env.step)(
+            jax.random.split(k_env, cfg.num_envs), state, actions)
+        transition = dict(obs=obs, actions=actions, logp=logp, value=value, rewards=rewards, done=done,
+                          info={k: info[k] for k in ("episode_return", "steps", "episode_collided",
+                                                      "episode_out_of_bounds")})
+        return (params, next_obs, state), transition
 
-        def gae(traj, last_value):
-            def backward(carry, t):
-                next_value, next_adv = carry
-                not_done = 1.0 - t["done"][:, None].astype(jnp.float32)
-                delta = t["rewards"] + cfg.gamma * next_value * not_done - t["value"]
-                adv = delta + cfg.gamma * cfg.gae_lambda * not_done * next_adv
-                return (t["value"], adv), adv
+    def gae(traj, last_value):
+        def backward(carry, t):
+            next_value, next_adv = carry
+            not_done = 1.0 - t["done"][:, None].astype(jnp.float32)
+            delta = t["rewards"] + cfg.gamma * next_value * not_done - t["value"]
+            adv = delta + cfg.gamma * cfg.gae_lambda * not_done * next_adv
+            return (t["value"], adv), adv
 
-            _, adv = jax.lax.scan(backward, (last_value, jnp.zeros_like(last_value)), traj, reverse=True)
-            return adv, adv + traj["value"]
+        _, adv = jax.lax.scan(backward, (last_value, jnp.zeros_like(last_value)), traj, reverse=True)
+        return adv, adv + traj["value"]
 
-        def loss_fn(params, mb):
-            logits, value = forward(params, mb["obs"])
-            logp_all = jax.nn.log_softmax(logits)
-            logp = jnp.take_along_axis(logp_all, mb["actions"][..., None], -1)[..., 0]
-            ratio = jnp.exp(logp - mb["logp"])
-            adv = (mb["adv"] - mb["adv"].mean()) / (mb["adv"].std() + 1e-8)
-            actor = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - cfg.clip_eps, 1 + cfg.clip_eps) * adv).mean()
-            v_clipped = mb["value"] + jnp.clip(value - mb["value"], -cfg.clip_eps, cfg.clip_eps)
-            critic = 0.5 * jnp.maximum((value - mb["target"]) ** 2, (v_clipped - mb["target"]) ** 2).mean()
-            entropy = -(jnp.exp(logp_all) * logp_all).sum(-1).mean()
-            return actor + cfg.vf_coef * critic - cfg.ent_coef * entropy, entropy
+    def loss_fn(params, mb):
+        logits, value = forward(params, mb["obs"])
+        logp_all = jax.nn.log_softmax(logits)
+        logp = jnp.take_along_axis(logp_all, mb["actions"][..., None], -1)[..., 0]
+        ratio = jnp.exp(logp - mb["logp"])
+        adv = (mb["adv"] - mb["adv"].mean()) / (mb["adv"].std() + 1e-8)
+        actor = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - cfg.clip_eps, 1 + cfg.clip_eps) * adv).mean()
+        v_clipped = mb["value"] + jnp.clip(value - mb["value"], -cfg.clip_eps, cfg.clip_eps)
+        critic = 0.5 * jnp.maximum((value - mb["target"]) ** 2, (v_clipped - mb["target"]) ** 2).mean()
+        entropy = -(jnp.exp(logp_all) * logp_all).sum(-1).mean()
+        return actor + cfg.vf_coef * critic - cfg.ent_coef * entropy, entropy
 
-        def update(carry, key):
-            params, opt_state, obs, state = carry
-            k_roll, k_perm = jax.random.split(key)
-            (params, obs, state), traj = jax.lax.scan(env_step, (params, obs, state),
-                                                      jax.random.split(k_roll, cfg.num_steps))
-            _, last_value = forward(params, obs)
-            adv, target = gae(traj, last_value)
-            data = dict(obs=traj["obs"], actions=traj["actions"], logp=traj["logp"], value=traj["value"],
-                        adv=adv, target=target)
-            data = jax.tree_util.tree_map(lambda x: x.reshape((batch,) + x.shape[2:]), data)
+    def update(carry, key):
+        params, opt_state, obs, state = carry
+        k_roll, k_perm = jax.random.split(key)
+        (params, obs, state), traj = jax.lax.scan(env_step, (params, obs, state),
+                                                  jax.random.split(k_roll, cfg.num_steps))
+        _, last_value = forward(params, obs)
+        adv, target = gae(traj, last_value)
+        data = dict(obs=traj["obs"], actions=traj["actions"], logp=traj["logp"], value=traj["value"],
+                    adv=adv, target=target)
+        data = jax.tree_util.tree_map(lambda x: x.reshape((batch,) + x.shape[2:]), data)
 
-            def epoch(carry, key):
+        def epoch(carry, key):
+            params, opt_state = carry
+            perm = jax.random.permutation(key, batch)
+            shuffled = jax.tree_util.tree_map(lambda x: x[perm].reshape((cfg.num_minibatches, minibatch) + x.shape[1:]), data)
+
+            def sgd(carry, mb):
                 params, opt_state = carry
-                perm = jax.random.permutation(key, batch)
-                shuffled = jax.tree_util.tree_map(lambda x: x[perm].reshape((cfg.num_minibatches, minibatch) + x.shape[1:]), data)
+                (loss, entropy), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, mb)
+                updates, opt_state = tx.update(grads, opt_state, params)
+                return (optax.apply_updates(params, updates), opt_state), (loss, entropy)
 
-                def sgd(carry, mb):
-                    params, opt_state = carry
-                    (loss, entropy), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, mb)
-                    updates, opt_state = tx.update(grads, opt_state, params)
-                    return (optax.apply_updates(params, updates), opt_state), (loss, entropy)
+            (params, opt_state), stats = jax.lax.scan(sgd, (params, opt_state), shuffled)
+            return (params, opt_state), stats
 
-                (params, opt_state), stats = jax.lax.scan(sgd, (params, opt_state), shuffled)
-                return (params, opt_state), stats
+        (params, opt_state), (loss, entropy) = jax.lax.scan(
+            epoch, (params, opt_state), jax.random.split(k_perm, cfg.update_epochs))
+        done = traj["done"]
+        count = done.sum()
 
-            (params, opt_state), (loss, entropy) = jax.lax.scan(
-                epoch, (params, opt_state), jax.random.split(k_perm, cfg.update_epochs))
-            done = traj["done"]
-            count = done.sum()
+        def at_done(x):
+            return jnp.where(count > 0, jnp.sum(jnp.where(done, x, 0)) / jnp.maximum(count, 1), jnp.nan)
 
-            def at_done(x):
-                return jnp.where(count > 0, jnp.sum(jnp.where(done, x, 0)) / jnp.maximum(count, 1), jnp.nan)
+        info = traj["info"]
+        metrics = dict(return_=at_done(info["episode_return"]), length=at_done(info["steps"]),
+                       collision_rate=at_done(info["episode_collided"]),
+                       out_of_bounds_rate=at_done(info["episode_out_of_bounds"]), episodes=count,
+                       loss=loss.mean(), entropy=entropy.mean())
+        return (params, opt_state, obs, state), metrics
 
-            info = traj["info"]
-            metrics = dict(return_=at_done(info["episode_return"]), length=at_done(info["steps"]),
-                           collision_rate=at_done(info["episode_collided"]),
-                           out_of_bounds_rate=at_done(info["episode_out_of_bounds"]), episodes=count,
-                           loss=loss.mean(), entropy=entropy.mean())
-            return (params, opt_state, obs, state), metrics
 
-        (params, _, _, _), metrics = jax.lax.scan(update, (params, opt_state, obs, state),
-                                                  jax.random.split(key, cfg.num_updates))
+    def run(runner, num_updates: int):
+        """Advance a runner state by ``num_updates`` updates (static): ``(runner, metrics)``.
+
+        The key and the learning-rate schedule's count live in the runner state, so a run cut into
+        chunks follows the same trajectory as one long run: bit-identical for a fixed chunk size
+        (what the driver's resume relies on), equal to float rounding across chunkings.
+        """
+        def one(runner, _):
+            key, sub = jax.random.split(runner["key"])
+            carry = (runner["params"], runner["opt_state"], runner["obs"], runner["env_state"])
+            (params, opt_state, obs, env_state), metrics = update(carry, sub)
+            return dict(params=params, opt_state=opt_state, obs=obs, env_state=env_state, key=key,
+                        update=runner["update"] + 1), metrics
+
+        runner, metrics = jax.lax.scan(one, runner, None, length=num_updates)
         metrics["return"] = metrics.pop("return_")
-        return params, metrics
+        return runner, metrics
 
+    def train(key):
+        runner, metrics = run(init(key), cfg.num_updates)
+        return runner["params"], metrics
+
+    train.init, train.run = init, run
     return train
 
 

@@ -165,7 +165,8 @@ def _train(args) -> int:
     from algorithms.driver import train
 
     train(args.scenario, args.algo, int(float(args.total_steps)), args.seeds, args.out,
-          env_overrides=parse_overrides(args.set), hp=parse_overrides(args.hp))
+          env_overrides=parse_overrides(args.set), hp=parse_overrides(args.hp),
+          checkpoint_every=args.checkpoint_every, resume=args.resume, progress=not args.no_progress)
     print(f"run folder: {args.out}")
     return 0
 
@@ -174,6 +175,11 @@ def _quickstart(args) -> int:
     from algorithms.driver import train
 
     out = Path(args.out)
+    if (out / "checkpoints").exists():
+        import shutil
+
+        shutil.rmtree(out / "checkpoints")  # the quickstart always starts fresh
+        shutil.rmtree(out / "best", ignore_errors=True)
     result = train("simple_navigation", "ippo", 300_000, 2, out, hp={"lr": 1e-3})
     gif = out / "episode.gif"
     _episode_gif(out, gif)
@@ -266,6 +272,9 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--out", default="runs/train")
     tr.add_argument("--set", action="append", metavar="KEY=VALUE", help="env config override (repeatable)")
     tr.add_argument("--hp", action="append", metavar="KEY=VALUE", help="algorithm setting (repeatable)")
+    tr.add_argument("--checkpoint-every", type=int, default=None, help="updates per chunk/checkpoint (default: 1/10 of the run)")
+    tr.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
+    tr.add_argument("--no-progress", action="store_true", help="no progress bar")
     tr.set_defaults(func=_train)
     qs = sub.add_parser("quickstart", help="the main job: train, evaluate, plot and render (a few minutes)")
     qs.add_argument("--out", default="runs/quickstart")
