@@ -30,6 +30,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from marbler_jax import cbf, controllers, physics
@@ -57,7 +58,7 @@ class EnvState:
     out_of_bounds: jax.Array
 
 
-def make_barrier(config: ScenarioConfig, num_agents: int):
+def barrier_for(config: ScenarioConfig, num_agents: int):
     """The SI barrier for ``config.barrier_certificate`` (``None`` when ``"none"``)."""
     kind = config.barrier_certificate
     iterations = config.cbf_iterations if config.cbf_iterations is not None else 8 + 2 * num_agents
@@ -78,7 +79,7 @@ class MarblerEnv:
         self.config = scenario.config
         self.params = physics.get_params(self.config.physics)
         physics.check_num_robots(self.params, scenario.num_agents)
-        self.barrier = make_barrier(self.config, scenario.num_agents)
+        self.barrier = barrier_for(self.config, scenario.num_agents)
 
     # --- sizes -------------------------------------------------------------------------------
     @property
@@ -227,10 +228,7 @@ class MarblerEnv:
         Under ``jit`` values cannot be inspected, so out-of-range actions are clipped there.
         """
         if not isinstance(actions, jax.core.Tracer):
-            values = jax.device_get(actions)
-            import numpy as np
-
-            values = np.asarray(values)
+            values = np.asarray(jax.device_get(actions))
             if values.size and np.issubdtype(values.dtype, np.integer) and (
                     values.min() < 0 or values.max() >= self.num_actions):
                 raise ValueError(
