@@ -147,11 +147,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     bar.close()
     seconds = time.perf_counter() - t_start
     params = runner["params"]
-    flat = {"/".join(str(getattr(k, "key", k)) for k in path): np.asarray(v)
-            for path, v in jax.tree_util.tree_flatten_with_path(params)[0]}
-    tmp = out / "params.tmp.npz"
-    np.savez(tmp, **flat)
-    os.replace(tmp, out / "params.npz")
+    save_params(out / "params.npz", params)
     first = jax.tree_util.tree_map(lambda x: x[0], params)
     key = jax.random.PRNGKey(12345)
     trained = evaluate(env, greedy(env, cfg, first), eval_episodes, key)
@@ -163,6 +159,37 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     log(f"greedy return {trained['return']:.2f} vs random {random['return']:.2f}; "
         f"collisions {trained['collision_rate']:.1%}, out of bounds {trained['out_of_bounds_rate']:.1%}")
     return result
+
+
+def save_params(path: Path, params) -> None:
+    """Write a parameter pytree of nested dicts as ``.npz`` (keys ``a/b/c``), atomically."""
+    flat = {"/".join(str(getattr(k, "key", k)) for k in key_path): np.asarray(v)
+            for key_path, v in jax.tree_util.tree_flatten_with_path(params)[0]}
+    tmp = Path(path).with_name(Path(path).stem + ".tmp.npz")
+    np.savez(tmp, **flat)
+    os.replace(tmp, path)
+
+
+def load_params(path: Path) -> dict:
+    """Inverse of :func:`save_params`."""
+    params: dict = {}
+    with np.load(path) as flat:
+        for name in flat.files:
+            node = params
+            *parents, leaf = name.split("/")
+            for p in parents:
+                node = node.setdefault(p, {})
+            node[leaf] = flat[name]
+    return params
+
+
+def load_run(run: Path, seed_index: int = 0):
+    """``(env, greedy policy)`` of seed ``seed_index`` of a finished run folder."""
+    config = json.loads((Path(run) / "config.json").read_text())
+    env = marbler_jax.make(config["scenario"], **config["env"])
+    cfg_cls, _, greedy = ALGORITHMS[config["algo"]]
+    params = jax.tree_util.tree_map(lambda x: x[seed_index], load_params(Path(run) / "params.npz"))
+    return env, greedy(env, cfg_cls(**config["algorithm"]), params)
 
 
 def _nan_stat(fn, x):
@@ -199,4 +226,5 @@ def plot_learning_curve(metrics_path: Path, png: Path, title: str) -> None:
     os.replace(tmp, png)
 
 
-__all__ = ["train", "evaluate", "plot_learning_curve", "ALGORITHMS", "atomic_write"]
+__all__ = ["train", "evaluate", "plot_learning_curve", "ALGORITHMS", "atomic_write", "save_params",
+           "load_params", "load_run"]

@@ -123,22 +123,11 @@ def _rollout(args) -> int:
     print(f"  compile {compile_s:.1f} s, run {run_s:.2f} s = {args.envs * args.steps / run_s:,.0f} env-steps/s")
     print("  finished episodes: " + ", ".join(f"{k} {v:.3f}" for k, v in stats.items()))
     if args.gif:
-        from marbler_jax.render import render_frame
         import imageio.v2 as imageio
 
-        step = jax.jit(env.step)
-        obs, s = env.reset(jax.random.PRNGKey(args.seed))
-        frames = [render_frame(env, jax.device_get(s), step=0, reward=0.0)]
-        key = jax.random.PRNGKey(args.seed + 2)
-        for t in range(env.max_steps):
-            key, k_act, k_step = jax.random.split(key, 3)
-            actions = jax.random.randint(k_act, (env.num_agents,), 0, env.num_actions)
-            obs, s_next, rewards, done, info = step(k_step, s, actions)
-            shown = s_next if not bool(done) else s
-            frames.append(render_frame(env, jax.device_get(shown), step=t + 1, reward=float(info["episode_return"])))
-            s = s_next
-            if bool(done):
-                break
+        from marbler_jax.render import render_episode
+
+        frames = render_episode(env, None, jax.random.PRNGKey(args.seed + 2))
         Path(args.gif).parent.mkdir(parents=True, exist_ok=True)
         imageio.mimsave(args.gif, np.stack(frames), duration=0.25, loop=0)
         print(f"  GIF of env 0 ({len(frames)} frames): {args.gif}")
@@ -193,38 +182,15 @@ def _quickstart(args) -> int:
 
 def _episode_gif(run: Path, gif: Path) -> None:
     """GIF of one greedy episode of the run's first seed."""
-    import json
-
     import imageio.v2 as imageio
     import jax
     import numpy as np
 
-    import marbler_jax
-    from algorithms.ippo import IPPOConfig, greedy_policy
-    from marbler_jax.render import render_frame
+    from algorithms.driver import load_run
+    from marbler_jax.render import render_episode
 
-    config = json.loads((run / "config.json").read_text())
-    env = marbler_jax.make(config["scenario"], **config["env"])
-    cfg = IPPOConfig(**config["algorithm"])
-    flat = np.load(run / "params.npz")
-    leaves = {k: v[0] for k, v in flat.items()}
-    params = {}
-    for path, value in leaves.items():
-        node = params
-        *parents, leaf = path.split("/")
-        for p in parents:
-            node = node.setdefault(p, {})
-        node[leaf] = value
-    act = jax.jit(greedy_policy(env, cfg, params))
-    step = jax.jit(env.step_env)
-    obs, state = env.reset(jax.random.PRNGKey(1))
-    frames = [render_frame(env, jax.device_get(state), step=0, reward=0.0)]
-    for t in range(env.max_steps):
-        obs, state, rewards, done, info = step(jax.random.PRNGKey(t), state, act(None, obs))
-        frames.append(render_frame(env, jax.device_get(state), step=t + 1, reward=float(info["episode_return"])))
-        if bool(done):
-            break
-    imageio.mimsave(gif, np.stack(frames), duration=0.15, loop=0)
+    env, policy = load_run(run)
+    imageio.mimsave(gif, np.stack(render_episode(env, policy, jax.random.PRNGKey(1))), duration=0.15, loop=0)
 
 
 def _bench(args) -> int:

@@ -57,6 +57,28 @@ def render_frame(env, state, *, step: int | None = None, reward: float | None = 
     return image
 
 
+def render_episode(env, policy, key, max_steps: int | None = None) -> list[np.ndarray]:
+    """Frames of one episode (reset frame + one per step, stopping at ``done``).
+
+    ``policy(key, obs [N, obs_dim]) -> actions [N]``; ``None`` means uniform random actions.
+    """
+    import jax
+
+    step = jax.jit(env.step_env)
+    act = jax.jit(policy) if policy is not None else jax.jit(
+        lambda k, obs: jax.random.randint(k, (env.num_agents,), 0, env.num_actions))
+    key, k_reset = jax.random.split(key)
+    obs, state = env.reset(k_reset)
+    frames = [render_frame(env, jax.device_get(state), step=0, reward=0.0)]
+    for t in range(max_steps or env.max_steps):
+        key, k_act, k_step = jax.random.split(key, 3)
+        obs, state, rewards, done, info = step(k_step, state, act(k_act, obs))
+        frames.append(render_frame(env, jax.device_get(state), step=t + 1, reward=float(info["episode_return"])))
+        if bool(done):
+            break
+    return frames
+
+
 def _draw_layer(ax, plt, layer: dict) -> None:
     kind = layer["kind"]
     if kind == "points":

@@ -83,8 +83,7 @@ def bench_integrate(ns, batches, min_time, ticks=29):
 
 def accuracy():
     """Share of golden tight-QP cases matched per kind (skipped without ../shared/golden)."""
-    golden = Path(__file__).resolve().parents[2] / "shared" / "golden" / "cbf"
-    if not golden.is_dir():
+    if golden_case("si_cert_default", 4) is None:
         return []
     files = {
         "si_cert2_marbler_safe": ("si2", dict(safety_radius=0.2)), "si_cert_default": ("si", {}),
@@ -93,14 +92,9 @@ def accuracy():
     }
     rows = []
     for fname, (kind, kwargs) in files.items():
-        data = np.load(golden / f"{fname}.npz")
         barrier = cbf.make_barrier(kind, **kwargs)
         for n in (4, 20):
-            g = {k[len(f"N{n}_"):]: v for k, v in data.items() if k.startswith(f"N{n}_")}
-            ok = g["status_tight"] == 1
-            x = np.swapaxes(g["x"], -1, -2)
-            u_nom = np.swapaxes(g["u_nom"], -1, -2)
-            ref = np.swapaxes(g["u_out_tight"], -1, -2)
+            x, u_nom, ref, ok = golden_case(fname, n)
             u = np.asarray(jax.jit(barrier)(jnp.asarray(u_nom, jnp.float32), jnp.asarray(x, jnp.float32)))
             err = np.abs(u - ref).max(axis=(1, 2))[ok]
             rows.append(dict(kind=kind, n=n, cases=int(ok.sum()), worst_abs_err=float(err.max()),
@@ -109,23 +103,31 @@ def accuracy():
     return rows
 
 
+def golden_case(fname: str, n: int):
+    """``(x, u_nom, u_out_tight, ok)`` of one golden CBF file at team size ``n`` (robot-major),
+    or ``None`` when ``../shared/golden`` is absent."""
+    path = Path(__file__).resolve().parents[2] / "shared" / "golden" / "cbf" / f"{fname}.npz"
+    if not path.exists():
+        return None
+    data = np.load(path)
+    g = {k[len(f"N{n}_"):]: v for k, v in data.items() if k.startswith(f"N{n}_")}
+    swap = lambda a: np.swapaxes(a, -1, -2)  # noqa: E731
+    return swap(g["x"]), swap(g["u_nom"]), swap(g["u_out_tight"]), g["status_tight"] == 1
+
+
 def sweep_study(n=20, batch=4096, sweeps=(16, 24, 48, 100), min_time=1.0):
     """Speed and golden accuracy of ``si2`` (radius 0.2) at one N for several sweep budgets."""
-    golden = Path(__file__).resolve().parents[2] / "shared" / "golden" / "cbf" / "si_cert2_marbler_safe.npz"
+    case = golden_case("si_cert2_marbler_safe", n)
     rows = []
     for iters in sweeps:
         barrier = cbf.make_barrier("si2", safety_radius=0.2, iterations=iters)
         x, u = problem(n, batch)
         sec, _ = timed(jax.jit(barrier), u, x, min_time=min_time)
         row = dict(n=n, batch=batch, sweeps=iters, team_solves_per_s=batch / sec)
-        if golden.exists():
-            data = np.load(golden)
-            g = {k[len(f"N{n}_"):]: v for k, v in data.items() if k.startswith(f"N{n}_")}
-            ok = g["status_tight"] == 1
+        if case is not None:
+            x, u_nom, ref, ok = case
             with jax.enable_x64(True):
-                out = np.asarray(jax.jit(barrier)(jnp.asarray(np.swapaxes(g["u_nom"], -1, -2)),
-                                                   jnp.asarray(np.swapaxes(g["x"], -1, -2))))
-            ref = np.swapaxes(g["u_out_tight"], -1, -2)
+                out = np.asarray(jax.jit(barrier)(jnp.asarray(u_nom), jnp.asarray(x)))
             err = np.abs(out - ref).max(axis=(1, 2))
             tol = 5e-4 + 1e-3 * np.abs(ref).max(axis=(1, 2))
             row["golden_match"] = float((err <= tol)[ok].mean())

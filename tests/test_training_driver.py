@@ -8,7 +8,7 @@ import orbax.checkpoint as ocp
 import pytest
 
 import marbler_jax
-from algorithms.driver import train
+from algorithms.driver import load_params, load_run, train
 from algorithms.ippo import IPPOConfig, make_train
 
 HP = dict(num_envs=8, num_steps=8, num_minibatches=2, update_epochs=1, hidden=16)
@@ -57,3 +57,7 @@ def test_interrupted_run_resumes_bit_exactly(tmp_path):
     restored = manager.restore(4)
     kernel = restored["params"]["params"]["actor"]["Dense_0"]["kernel"]
     np.testing.assert_array_equal(kernel, full["params/actor/Dense_0/kernel"])
+    loaded = load_params(tmp_path / "full" / "params.npz")
+    np.testing.assert_array_equal(loaded["params"]["actor"]["Dense_0"]["kernel"], kernel)
+    env, policy = load_run(tmp_path / "full")
+    assert env.name == "warehouse" and policy(None, np.zeros((env.num_agents, env.obs_dim))).shape == (env.num_agents,)

@@ -292,6 +292,20 @@ def distinct_indices(key, n: int, m: int):
     return picks[rank]
 
 
+def spawn_band(key, n, config, spacing, left: bool):
+    """MARBLER's ``generate_initial_locations``: rps grid in a band, shifted to the left or right."""
+    if left:
+        width = config.ROBOT_INIT_RIGHT_THRESH - config.LEFT
+        shift = -(width / 2 - config.ROBOT_INIT_RIGHT_THRESH)
+    else:
+        width = config.RIGHT - config.PREY_INIT_LEFT_THRESH
+        shift = width / 2 - config.ROBOT_INIT_RIGHT_THRESH
+    xy = grid_positions(key, n, spacing, width, config.DOWN - config.UP)
+    import jax.numpy as jnp
+
+    return xy + jnp.array([shift, 0.0], jnp.float32)
+
+
 def check_capacity(name: str, n: int, spacing: float, width: float, height: float, what: str = "robots"):
     """Raise a clear error when the spawn grid cannot hold ``n`` items."""
     capacity = grid_capacity(spacing, width, height)

@@ -31,8 +31,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from marbler_jax._xp import namespace
-from marbler_jax.scenarios.base import Scenario, ScenarioConfig, check_capacity, nearest_others
-from marbler_jax.scenarios.simple_navigation import spawn_band
+from marbler_jax.scenarios.base import Scenario, ScenarioConfig, check_capacity, nearest_others, spawn_band
 
 NO_PREY = -5.0
 

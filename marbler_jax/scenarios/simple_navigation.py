@@ -19,7 +19,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from marbler_jax._xp import namespace
-from marbler_jax.scenarios.base import Scenario, ScenarioConfig, check_capacity, grid_positions, nearest_others
+from marbler_jax.scenarios.base import Scenario, ScenarioConfig, check_capacity, nearest_others, spawn_band
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,18 +48,6 @@ class SimpleConfig(ScenarioConfig):
 @struct.dataclass
 class SimpleState:
     goal: jax.Array  # [2]
-
-
-def spawn_band(key, n, config, spacing, left: bool):
-    """MARBLER's ``generate_initial_locations``: rps grid in a band, shifted to the left or right."""
-    if left:
-        width = config.ROBOT_INIT_RIGHT_THRESH - config.LEFT
-        shift = -(width / 2 - config.ROBOT_INIT_RIGHT_THRESH)
-    else:
-        width = config.RIGHT - config.PREY_INIT_LEFT_THRESH
-        shift = width / 2 - config.ROBOT_INIT_RIGHT_THRESH
-    xy = grid_positions(key, n, spacing, width, config.DOWN - config.UP)
-    return xy + jnp.array([shift, 0.0], jnp.float32)
 
 
 class SimpleNavigation(Scenario):
