@@ -60,4 +60,4 @@ def test_interrupted_run_resumes_bit_exactly(tmp_path):
     loaded = load_params(tmp_path / "full" / "params.npz")
     np.testing.assert_array_equal(loaded["params"]["actor"]["Dense_0"]["kernel"], kernel)
     env, policy = load_run(tmp_path / "full")
-    assert env.name == "warehouse" and policy(None, np.zeros((env.num_agents, env.obs_dim))).shape == (env.num_agents,)
+    assert env.name == "warehouse" and policy(None, np.zeros((env.num_agents, env.obs_dim), np.float32)).shape == (env.num_agents,)
