@@ -19,10 +19,17 @@ import jax
 import numpy as np
 
 import marbler_jax
-from algorithms import ippo
+from algorithms import ippo, mappo, qmix, vdn
 from marbler_jax.rollout import episode_stats, make_rollout
 
-ALGORITHMS = {"ippo": (ippo.IPPOConfig, ippo.make_train, ippo.greedy_policy)}
+# name -> (config class, make_train(env, cfg), greedy_policy(env, cfg, params))
+ALGORITHMS = {
+    "ippo": (ippo.IPPOConfig, ippo.make_train, ippo.greedy_policy),
+    "mappo": (mappo.MAPPOConfig, mappo.make_train, mappo.greedy_policy),
+    "vdn": (vdn.VDNConfig, vdn.make_train, vdn.greedy_policy),
+    "qmix": (qmix.QMIXConfig, qmix.make_train, qmix.greedy_policy),
+    "qmix_ns": (qmix.QMIXNSConfig, qmix.make_train, qmix.greedy_policy),
+}
 
 
 def atomic_write(path: Path, data: bytes | str) -> None:
@@ -87,6 +94,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     atomic_write(out / "config.json", config_json)
 
     trainer = make_train(env, cfg)
+    num_updates, steps_per_update = trainer.num_updates, trainer.steps_per_update
     runner = jax.jit(lambda keys: jax.lax.map(trainer.init, keys))(jax.random.split(jax.random.PRNGKey(seed), seeds))
     options = ocp.CheckpointManagerOptions(max_to_keep=keep, enable_async_checkpointing=False)
     manager = ocp.CheckpointManager(checkpoints, options=options)
@@ -99,18 +107,17 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         if (out / "metrics.jsonl").exists():
             lines = [line for line in (out / "metrics.jsonl").read_text().splitlines()
                      if line.strip() and json.loads(line)["update"] <= done]
-        log(f"resuming from update {done} of {cfg.num_updates}")
+        log(f"resuming from update {done} of {num_updates}")
     best = max((json.loads(line)["return_mean"] for line in lines
                 if json.loads(line)["return_mean"] is not None), default=-np.inf)
-    chunk = checkpoint_every or max(1, cfg.num_updates // 10)
-    steps_per_update = cfg.num_envs * cfg.num_steps
+    chunk = checkpoint_every or max(1, num_updates // 10)
     run_fns = {}
-    log(f"training {algo} on {scenario}: {cfg.num_updates} updates x {steps_per_update} env steps, "
+    log(f"training {algo} on {scenario}: {num_updates} updates x {steps_per_update} env steps, "
         f"{seeds} seed(s) in one program, checkpoint every {chunk} updates")
     t_start = time.perf_counter()
-    bar = tqdm(total=cfg.num_updates, initial=done, unit="update", disable=not progress, dynamic_ncols=True)
-    while done < cfg.num_updates:
-        n = min(chunk, cfg.num_updates - done)
+    bar = tqdm(total=num_updates, initial=done, unit="update", disable=not progress, dynamic_ncols=True)
+    while done < num_updates:
+        n = min(chunk, num_updates - done)
         if n not in run_fns:
             # Seeds run through lax.map inside one program. jax.vmap over seeds also works, but with
             # jaxlib 0.10.2 on CPU vmapped IPPO on simple_navigation (64 envs x 64 steps) deadlocks
@@ -153,7 +160,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     trained = evaluate(env, greedy(env, cfg, first), eval_episodes, key)
     random = evaluate(env, None, eval_episodes, key)
     result = dict(trained=trained, random=random, train_seconds=seconds,
-                  env_steps_per_s=seeds * cfg.total_timesteps / max(seconds, 1e-9), best_return=best)
+                  env_steps_per_s=seeds * num_updates * steps_per_update / max(seconds, 1e-9), best_return=best)
     atomic_write(out / "evaluation.json", json.dumps(result, indent=2))
     log(f"trained in {seconds:.1f} s ({result['env_steps_per_s']:,.0f} env-steps/s including learning)")
     log(f"greedy return {trained['return']:.2f} vs random {random['return']:.2f}; "

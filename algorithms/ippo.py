@@ -1,5 +1,8 @@
 """IPPO: independent PPO, one actor-critic per agent on its own observation (decentralised critic).
 
+With ``critic_input="global"`` the critic sees the global state instead (every agent's observation
+concatenated, as MARBLER's EPyMARL runs did): that is MAPPO (:mod:`algorithms.mappo`).
+
 The whole training run is one jitted function ``train(key) -> (params, metrics)`` built by
 :func:`make_train`; ``jax.lax.map(train, keys)`` trains several seeds in one program (``jax.vmap``
 over seeds deadlocks the XLA CPU runtime for some configurations with jaxlib 0.10.2; see
@@ -22,6 +25,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from algorithms.common import episode_info, rollout_metrics
 from algorithms.networks import ActorCritic, apply_agents, init_agents, with_agent_ids
 
 
@@ -45,6 +49,7 @@ class IPPOConfig:
     activation: str = "tanh"
     shared: bool = True
     agent_ids: bool = True
+    critic_input: str = "local"      # "local": own observation (IPPO); "global": all observations (MAPPO)
 
     @property
     def num_updates(self) -> int:
@@ -54,6 +59,8 @@ class IPPOConfig:
         for name in ("total_timesteps", "num_envs", "num_steps", "update_epochs", "num_minibatches", "hidden", "layers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.critic_input not in ("local", "global"):
+            raise ValueError(f"critic_input must be 'local' or 'global', got {self.critic_input!r}")
         if (self.num_envs * self.num_steps) % self.num_minibatches:
             raise ValueError(f"num_envs * num_steps = {self.num_envs * self.num_steps} must be divisible by "
                              f"num_minibatches = {self.num_minibatches}")
@@ -61,6 +68,21 @@ class IPPOConfig:
 
 def policy_inputs(cfg: IPPOConfig, obs):
     return with_agent_ids(obs) if cfg.agent_ids and cfg.shared else obs
+
+
+def global_state(obs):
+    """The global state of MARBLER's learners: every agent's observation concatenated,
+    ``[..., N, D] -> [..., N * D]``."""
+    return obs.reshape(obs.shape[:-2] + (obs.shape[-2] * obs.shape[-1],))
+
+
+def critic_inputs(cfg: IPPOConfig, obs):
+    """The critic's input per agent ``[..., N, F]``: the policy input (``"local"``) or the global
+    state broadcast to every agent, with the agent-ID one-hot when parameters are shared."""
+    if cfg.critic_input == "local":
+        return policy_inputs(cfg, obs)
+    state = jnp.broadcast_to(global_state(obs)[..., None, :], obs.shape[:-1] + (obs.shape[-2] * obs.shape[-1],))
+    return with_agent_ids(state) if cfg.shared else state
 
 
 def make_train(env, cfg: IPPOConfig):
@@ -82,13 +104,13 @@ def make_train(env, cfg: IPPOConfig):
     tx = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(schedule, eps=1e-5))
 
     def forward(params, obs):
-        return apply_agents(network, params, policy_inputs(cfg, obs), cfg.shared)
+        return apply_agents(network, params, policy_inputs(cfg, obs), critic_inputs(cfg, obs), shared=cfg.shared)
 
     def init(key):
         """Runner state ``(params, opt_state, obs, env_state, key, update)`` of a fresh run."""
         key, k_init, k_reset = jax.random.split(key, 3)
         obs, state = jax.vmap(env.reset)(jax.random.split(k_reset, cfg.num_envs))
-        sample = policy_inputs(cfg, obs[0])[0]
+        sample = (policy_inputs(cfg, obs[0])[0], critic_inputs(cfg, obs[0])[0])
         params = init_agents(network, k_init, sample, n_agents, cfg.shared)
         return dict(params=params, opt_state=tx.init(params), obs=obs, env_state=state, key=key,
                     update=jnp.int32(0))
@@ -102,8 +124,7 @@ def make_train(env, cfg: IPPOConfig):
         next_obs, state, rewards, done, info = jax.vmap(env.step)(
             jax.random.split(k_env, cfg.num_envs), state, actions)
         transition = dict(obs=obs, actions=actions, logp=logp, value=value, rewards=rewards, done=done,
-                          info={k: info[k] for k in ("episode_return", "steps", "episode_collided",
-                                                      "episode_out_of_bounds")})
+                          info=episode_info(info))
         return (params, next_obs, state), transition
 
     def gae(traj, last_value):
@@ -156,17 +177,7 @@ def make_train(env, cfg: IPPOConfig):
 
         (params, opt_state), (loss, entropy) = jax.lax.scan(
             epoch, (params, opt_state), jax.random.split(k_perm, cfg.update_epochs))
-        done = traj["done"]
-        count = done.sum()
-
-        def at_done(x):
-            return jnp.where(count > 0, jnp.sum(jnp.where(done, x, 0)) / jnp.maximum(count, 1), jnp.nan)
-
-        info = traj["info"]
-        metrics = dict(return_=at_done(info["episode_return"]), length=at_done(info["steps"]),
-                       collision_rate=at_done(info["episode_collided"]),
-                       out_of_bounds_rate=at_done(info["episode_out_of_bounds"]), episodes=count,
-                       loss=loss.mean(), entropy=entropy.mean())
+        metrics = dict(rollout_metrics(traj["done"], traj["info"]), loss=loss.mean(), entropy=entropy.mean())
         return (params, opt_state, obs, state), metrics
 
 
@@ -184,15 +195,14 @@ def make_train(env, cfg: IPPOConfig):
             return dict(params=params, opt_state=opt_state, obs=obs, env_state=env_state, key=key,
                         update=runner["update"] + 1), metrics
 
-        runner, metrics = jax.lax.scan(one, runner, None, length=num_updates)
-        metrics["return"] = metrics.pop("return_")
-        return runner, metrics
+        return jax.lax.scan(one, runner, None, length=num_updates)
 
     def train(key):
         runner, metrics = run(init(key), cfg.num_updates)
         return runner["params"], metrics
 
     train.init, train.run = init, run
+    train.num_updates, train.steps_per_update = cfg.num_updates, batch
     return train
 
 
@@ -202,7 +212,8 @@ def greedy_policy(env, cfg: IPPOConfig, params):
 
     def act(key, obs):
         del key
-        logits, _ = apply_agents(network, params, policy_inputs(cfg, obs), cfg.shared)
+        logits, _ = apply_agents(network, params, policy_inputs(cfg, obs), critic_inputs(cfg, obs),
+                                 shared=cfg.shared)
         return jnp.argmax(logits, axis=-1).astype(jnp.int32)
 
     return act

@@ -1,8 +1,11 @@
 """Agent networks shared by the algorithms (flax.linen).
 
 * :class:`MLP` -- a plain ReLU/tanh MLP.
-* :class:`ActorCritic` -- separate policy and value MLPs on one observation (IPPO; MAPPO uses its
-  own critic input).
+* :class:`ActorCritic` -- separate policy and value MLPs (IPPO: the critic sees the agent's own
+  observation; MAPPO: the global state).
+* :class:`QAgent` -- the Q-network of the value-based learners (VDN, QMIX): EPyMARL's RNN agent
+  (``fc -> ReLU -> GRU cell -> fc``) or a feed-forward variant, stepped one env step at a time with
+  an explicit hidden state (reset to zeros at episode starts).
 
 Per-agent parameters (no sharing) are obtained by ``jax.vmap``-ing ``init``/``apply`` over agents
 (:func:`init_agents`, :func:`apply_agents`); with sharing one parameter set serves every agent and
@@ -42,11 +45,41 @@ class ActorCritic(nn.Module):
     activation: str = "tanh"
 
     @nn.compact
-    def __call__(self, obs):
+    def __call__(self, obs, critic_obs=None):
+        """``critic_obs`` (default ``obs``) is the critic's input: MAPPO passes the global state."""
         widths = [self.hidden] * self.layers
         logits = MLP(widths + [self.num_actions], self.activation, final_scale=0.01, name="actor")(obs)
-        value = MLP(widths + [1], self.activation, final_scale=1.0, name="critic")(obs)[..., 0]
+        critic_in = obs if critic_obs is None else critic_obs
+        value = MLP(widths + [1], self.activation, final_scale=1.0, name="critic")(critic_in)[..., 0]
         return logits, value
+
+
+class QAgent(nn.Module):
+    """Per-agent Q-values ``[..., num_actions]`` from one observation ``[..., D]``.
+
+    ``__call__(hidden [..., H], obs [..., D], reset [..., 1] bool) -> (hidden, q)``: ``reset`` zeroes
+    the incoming hidden state (episode start). ``recurrent=True`` is EPyMARL's ``RNNAgent``
+    (``Dense(H) -> ReLU -> GRUCell(H) -> Dense(A)``, flax's GRU gate layout); ``recurrent=False``
+    replaces the GRU cell with ``Dense(H) -> ReLU`` and passes ``hidden`` through unchanged.
+    """
+
+    num_actions: int
+    hidden: int = 128
+    recurrent: bool = True
+
+    @nn.compact
+    def __call__(self, hidden, obs, reset):
+        x = nn.relu(nn.Dense(self.hidden, name="fc1")(obs))
+        if self.recurrent:
+            hidden = jnp.where(reset, 0.0, hidden)
+            hidden, x = nn.GRUCell(self.hidden, name="gru")(hidden, x)
+        else:
+            x = nn.relu(nn.Dense(self.hidden, name="fc_hidden")(x))
+        return hidden, nn.Dense(self.num_actions, name="fc2")(x)
+
+    def initial_hidden(self, batch_shape=()):
+        """Zero hidden state ``[*batch_shape, H]`` (``[*batch_shape, 1]`` for feed-forward agents)."""
+        return jnp.zeros(tuple(batch_shape) + ((self.hidden,) if self.recurrent else (1,)), jnp.float32)
 
 
 def with_agent_ids(obs):
@@ -56,16 +89,22 @@ def with_agent_ids(obs):
     return jnp.concatenate([obs, ids], axis=-1)
 
 
-def init_agents(module: nn.Module, key, sample_obs, num_agents: int, shared: bool):
-    """Parameters for ``num_agents`` agents: one set if ``shared`` else a stack (leading axis N)."""
+def init_agents(module: nn.Module, key, sample_inputs, num_agents: int, shared: bool):
+    """Parameters for ``num_agents`` agents: one set if ``shared`` else a stack (leading axis N).
+
+    ``sample_inputs`` is one agent's input (a tuple of arrays for multi-input modules).
+    """
+    sample = sample_inputs if isinstance(sample_inputs, tuple) else (sample_inputs,)
     if shared:
-        return module.init(key, sample_obs)
-    return jax.vmap(lambda k: module.init(k, sample_obs))(jax.random.split(key, num_agents))
+        return module.init(key, *sample)
+    return jax.vmap(lambda k: module.init(k, *sample))(jax.random.split(key, num_agents))
 
 
-def apply_agents(module: nn.Module, params, obs, shared: bool):
-    """Apply to ``obs [..., N, D]``: the same parameters for all agents, or agent i's to agent i."""
+def apply_agents(module: nn.Module, params, *inputs, shared: bool):
+    """Apply to inputs ``[..., N, F]`` (agent axis second to last): the same parameters for all
+    agents, or agent i's to agent i. Outputs keep the agent axis in the same place."""
     if shared:
-        return module.apply(params, obs)
-    agent_axis = obs.ndim - 2
-    return jax.vmap(module.apply, in_axes=(0, agent_axis), out_axes=agent_axis)(params, obs)
+        return module.apply(params, *inputs)
+    agent_axis = inputs[0].ndim - 2
+    return jax.vmap(module.apply, in_axes=(0,) + tuple(x.ndim - 2 for x in inputs),
+                    out_axes=agent_axis)(params, *inputs)

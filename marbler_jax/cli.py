@@ -6,7 +6,9 @@ Subcommands so far:
     rollout  -- batched random-policy rollout of a scenario: episode metrics, env-steps/s and
                 an optional GIF of the first env.
     list     -- scenarios with their robots, observation/action sizes and default config.
-    train    -- train an algorithm (IPPO so far) on a scenario and write a run folder.
+    train    -- train IPPO, MAPPO, VDN, QMIX or QMIX_NS on a scenario (presets fast/paper) and
+                write a run folder.
+    evaluate -- MARBLER's Table II metrics of a run's best checkpoint (JSON + Markdown).
     quickstart -- the main job: train IPPO on simple_navigation, evaluate, plot, render a GIF.
     bench    -- run ``scripts/bench_cbf.py`` (barrier + integrator throughput).
 """
@@ -152,11 +154,31 @@ def _list(args) -> int:
 
 def _train(args) -> int:
     from algorithms.driver import train
+    from algorithms.presets import preset
 
-    train(args.scenario, args.algo, int(float(args.total_steps)), args.seeds, args.out,
-          env_overrides=parse_overrides(args.set), hp=parse_overrides(args.hp),
+    env_overrides, hp, steps = preset(args.preset, args.scenario, args.algo)
+    env_overrides.update(parse_overrides(args.set))
+    hp.update(parse_overrides(args.hp))
+    total = int(float(args.total_steps)) if args.total_steps else steps
+    train(args.scenario, args.algo, total, args.seeds, args.out, env_overrides=env_overrides, hp=hp,
           checkpoint_every=args.checkpoint_every, resume=args.resume, progress=not args.no_progress)
     print(f"run folder: {args.out}")
+    return 0
+
+
+def _evaluate(args) -> int:
+    import json
+
+    from algorithms.driver import atomic_write
+    from algorithms.evaluate import evaluate_run, markdown_table
+
+    result = evaluate_run(args.run, args.episodes, args.checkpoint, seed=args.seed, progress=not args.no_progress)
+    table = markdown_table(result)
+    run = Path(args.run)
+    atomic_write(run / f"eval_{args.checkpoint}.json", json.dumps(result, indent=2))
+    atomic_write(run / f"eval_{args.checkpoint}.md", table)
+    print(table)
+    print(f"written: {run / f'eval_{args.checkpoint}.json'}, {run / f'eval_{args.checkpoint}.md'}")
     return 0
 
 
@@ -206,6 +228,8 @@ def _bench(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from algorithms.driver import ALGORITHMS
+    from algorithms.presets import PRESET_NAMES
     from marbler_jax import cbf, physics
 
     parser = argparse.ArgumentParser(prog="marbler-jax", description="Batched Robotarium simulation and MARL in JAX.")
@@ -232,8 +256,10 @@ def build_parser() -> argparse.ArgumentParser:
     lst.set_defaults(func=_list)
     tr = sub.add_parser("train", help="train an algorithm on a scenario (writes a run folder)")
     tr.add_argument("--scenario", default="simple_navigation")
-    tr.add_argument("--algo", default="ippo", choices=["ippo"])
-    tr.add_argument("--total-steps", default="3e5", help="env steps per seed (e.g. 5e6)")
+    tr.add_argument("--algo", default="ippo", choices=sorted(ALGORITHMS))
+    tr.add_argument("--preset", default="fast", choices=list(PRESET_NAMES),
+                    help="settings to start from (fast: our CPU setting; paper: MARBLER/EPyMARL's; none)")
+    tr.add_argument("--total-steps", default=None, help="env steps per seed (e.g. 5e6; default: the preset's)")
     tr.add_argument("--seeds", type=int, default=1, help="seeds trained in one vmapped program")
     tr.add_argument("--out", default="runs/train")
     tr.add_argument("--set", action="append", metavar="KEY=VALUE", help="env config override (repeatable)")
@@ -242,6 +268,13 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
     tr.set_defaults(func=_train)
+    ev = sub.add_parser("evaluate", help="paper-style metrics (MARBLER Table II) of a run's best checkpoint")
+    ev.add_argument("run", help="run folder written by `marbler-jax train`")
+    ev.add_argument("--episodes", type=int, default=100, help="greedy episodes per seed")
+    ev.add_argument("--checkpoint", default="best", choices=["best", "final"])
+    ev.add_argument("--seed", type=int, default=0)
+    ev.add_argument("--no-progress", action="store_true")
+    ev.set_defaults(func=_evaluate)
     qs = sub.add_parser("quickstart", help="the main job: train, evaluate, plot and render (a few minutes)")
     qs.add_argument("--out", default="runs/quickstart")
     qs.set_defaults(func=_quickstart)

@@ -1,10 +1,24 @@
 """Batched rollouts: ``jit(scan(vmap(step)))`` helpers for random or given policies."""
 from __future__ import annotations
 
+import dataclasses
 from typing import Callable
 
 import jax
 import jax.numpy as jnp
+
+
+@dataclasses.dataclass(frozen=True)
+class StatefulPolicy:
+    """A policy with memory (e.g. a recurrent Q-network) for batched rollouts.
+
+    ``initial_carry(batch_shape) -> carry`` and ``step(key, obs [..., N, D], carry, reset [...]) ->
+    (actions [..., N], carry)``, where ``reset`` is True at the first step of an episode (the policy
+    must clear its memory there). Plain policies are callables ``(key, obs) -> actions``.
+    """
+
+    initial_carry: Callable
+    step: Callable
 
 
 def random_actions(env, key, batch_shape=()):
@@ -14,24 +28,29 @@ def random_actions(env, key, batch_shape=()):
 
 def batched_rollout(env, key, num_envs: int, num_steps: int, policy: Callable | None = None):
     """Run ``num_envs`` envs for ``num_steps`` steps (auto-reset) with ``policy(key, obs) -> actions``
-    (uniform random when None). Returns the final state and the per-step ``(rewards, done, info)``
+    or a :class:`StatefulPolicy` (uniform random when None). Returns the final state and the per-step ``(rewards, done, info)``
     stacked as ``[num_steps, num_envs, ...]``. Jit it with ``env``, ``num_envs``, ``num_steps`` and
     ``policy`` static (see :func:`make_rollout`)."""
     step = jax.vmap(env.step)
     key_reset, key_run = jax.random.split(key)
     obs, state = jax.vmap(env.reset)(jax.random.split(key_reset, num_envs))
+    stateful = isinstance(policy, StatefulPolicy)
+    memory = policy.initial_carry((num_envs,)) if stateful else ()
 
     def body(carry, key_t):
-        obs, state = carry
+        obs, state, memory, reset = carry
         key_act, key_step = jax.random.split(key_t)
         if policy is None:
             actions = random_actions(env, key_act, (num_envs,))
+        elif stateful:
+            actions, memory = policy.step(key_act, obs, memory, reset)
         else:
             actions = policy(key_act, obs)
         obs, state, rewards, done, info = step(jax.random.split(key_step, num_envs), state, actions)
-        return (obs, state), (rewards, done, info)
+        return (obs, state, memory, done), (rewards, done, info)
 
-    (obs, state), traj = jax.lax.scan(body, (obs, state), jax.random.split(key_run, num_steps))
+    start = (obs, state, memory, jnp.ones((num_envs,), bool))
+    (obs, state, _, _), traj = jax.lax.scan(body, start, jax.random.split(key_run, num_steps))
     return state, traj
 
 

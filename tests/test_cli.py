@@ -53,3 +53,28 @@ def test_train_writes_a_complete_run_folder(tmp_path):
     evaluation = json.loads((out / "evaluation.json").read_text())
     assert set(evaluation) >= {"trained", "random", "train_seconds"}
     assert main(["train", "--hp", "no_such=1", "--total-steps", "100", "--out", str(out)]) == 2
+
+
+def test_train_vdn_then_evaluate_best_checkpoint(tmp_path, capsys):
+    import json
+
+    out = tmp_path / "vdn"
+    code = main(["train", "--scenario", "predator_capture_prey", "--algo", "vdn", "--total-steps", "1296",
+                 "--seeds", "2", "--out", str(out), "--no-progress", "--hp", "num_envs=8", "--hp", "hidden=16",
+                 "--hp", "learning_starts=0", "--hp", "buffer_size=32", "--hp", "batch_size=4",
+                 "--checkpoint-every", "1"])
+    assert code == 0
+    config = json.loads((out / "config.json").read_text())
+    assert config["env"]["control_period"] == 15 and config["algorithm"]["train_steps"] == 4   # fast preset
+    assert main(["evaluate", str(out), "--episodes", "6", "--no-progress"]) == 0
+    result = json.loads((out / "eval_best.json").read_text())
+    assert result["seeds"] == 2 and len(result["per_seed"]) == 2
+    pooled = result["pooled"]
+    assert set(pooled) == {"reward", "steps", "prey_left", "collisions", "out_of_bounds"}
+    assert 1 <= pooled["steps"]["mean"] <= 81 and 0 <= pooled["prey_left"]["mean"] <= 6
+    assert result["paper"]["reward"] == [33.25, 0.46]
+    table = (out / "eval_best.md").read_text()
+    assert "| reward |" in table and "33.25 ± 0.46" in table
+    assert "33.25 ± 0.46" in capsys.readouterr().out
+    assert main(["evaluate", str(tmp_path / "missing")]) == 2
+    assert "is not a run folder" in capsys.readouterr().err

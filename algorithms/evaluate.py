@@ -1,0 +1,155 @@
+"""Paper-style evaluation of a run folder (MARBLER's Table II metrics).
+
+``evaluate_run(run, episodes=100)`` restores the run's best checkpoint (``best/``; ``"final"`` uses
+``params.npz``), plays ``episodes`` greedy episodes per seed (one episode in each of ``episodes``
+batched envs, fresh random initial states) and reports, per seed and pooled over seeds, the mean
+and standard deviation of: Reward (team episode return), Steps (episode length, set to the maximum
+when the episode ended by a violation, as the paper does), Prey Left (PCP) / Material Left (MT),
+and the percentage of episodes with a collision / a boundary violation. The paper's simulated
+numbers are listed beside ours where the paper has them (``PAPER``).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import marbler_jax
+from marbler_jax.rollout import make_rollout
+
+# MARBLER paper, Table II, simulated experiments: (mean, std) per scenario / algorithm / metric.
+PAPER = {
+    "predator_capture_prey": {
+        "mappo": {"reward": (23.48, 5.33), "steps": (80.4, 1.8), "prey_left": (1.6, 0.92)},
+        "vdn": {"reward": (33.25, 0.46), "steps": (55.0, 9.18), "prey_left": (0.0, 0.0)},
+        "qmix": {"reward": (30.02, 3.8), "steps": (69.7, 12.32), "prey_left": (0.5, 0.67)},
+        "qmix_ns": {"reward": (31.76, 2.7), "steps": (62.9, 12.75), "prey_left": (0.2, 0.4)},
+    },
+    "warehouse": {
+        "mappo": {"reward": (36.6, 1.8)}, "vdn": {"reward": (28.7, 1.49)},
+        "qmix": {"reward": (27.4, 1.02)}, "qmix_ns": {"reward": (1.8, 1.25)},
+    },
+    "material_transport": {
+        "mappo": {"reward": (4.47, 0.93), "steps": (71.0, 0.0), "material_left": (8.4, 4.41)},
+        "vdn": {"reward": (5.15, 1.3), "steps": (65.5, 4.48), "material_left": (0.1, 0.3)},
+        "qmix": {"reward": (3.55, 0.85), "steps": (71.0, 0.0), "material_left": (9.4, 4.59)},
+        "qmix_ns": {"reward": (2.08, 0.85), "steps": (71.0, 0.0), "material_left": (28.7, 12.74)},
+    },
+    "arctic_transport": {
+        "mappo": {"reward": (-7.23, 1.61), "steps": (41.7, 10.65)},
+        "vdn": {"reward": (-6.98, 1.75), "steps": (38.1, 10.25)},
+        "qmix": {"reward": (-7.13, 1.59), "steps": (35.8, 8.24)},
+        "qmix_ns": {"reward": (-11.29, 3.29), "steps": (57.0, 7.71)},
+    },
+}
+
+METRICS = ("reward", "steps", "prey_left", "material_left", "collisions", "out_of_bounds")
+
+
+def first_episodes(env, traj) -> dict[str, np.ndarray]:
+    """Per-env metrics of the first episode each env finished in ``traj`` (``[T, E]`` arrays)."""
+    _, done, info = traj
+    done = np.asarray(done)
+    if not done.any(axis=0).all():
+        raise ValueError("every env must finish an episode; roll out at least env.max_steps steps")
+    first = done.argmax(axis=0)
+    cols = np.arange(done.shape[1])
+
+    def at(key):
+        return np.asarray(info[key])[first, cols]
+
+    steps = np.where(at("violation"), env.max_steps, at("steps"))
+    out = {"reward": at("episode_return"), "steps": steps.astype(float),
+           "collisions": 100.0 * at("episode_collided"), "out_of_bounds": 100.0 * at("episode_out_of_bounds")}
+    for key in ("prey_left", "material_left"):
+        if key in info:
+            out[key] = at(key).astype(float)
+    return out
+
+
+def greedy_episodes(env, policy, episodes: int, key) -> dict[str, np.ndarray]:
+    """``episodes`` greedy episodes (one per batched env) -> per-episode metric arrays."""
+    return first_episodes(env, make_rollout(env, episodes, env.max_steps, policy)(key)[1])
+
+
+def summarize(values: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
+    return {k: {"mean": float(np.mean(v)), "std": float(np.std(v))} for k, v in values.items()}
+
+
+def restore_params(run: Path, checkpoint: str = "best"):
+    """Seed-major parameters of a run: ``"best"`` (orbax ``best/``) or ``"final"`` (``params.npz``)."""
+    from algorithms.driver import load_params
+
+    run = Path(run)
+    if checkpoint == "final":
+        if not (run / "params.npz").exists():
+            raise ValueError(f"{run} has no params.npz (the run has not finished); try checkpoint='best'")
+        return load_params(run / "params.npz")
+    if checkpoint != "best":
+        raise ValueError(f"checkpoint must be 'best' or 'final', got {checkpoint!r}")
+    import orbax.checkpoint as ocp
+
+    best = run / "best"
+    manager = ocp.CheckpointManager(best.absolute()) if best.exists() else None
+    if manager is None or manager.latest_step() is None:
+        raise ValueError(f"{run} has no best checkpoint in {best}; train first or use checkpoint='final'")
+    try:
+        return manager.restore(manager.latest_step(), args=ocp.args.StandardRestore())
+    except Exception as err:   # orbax raises several types for damaged folders
+        raise ValueError(f"cannot restore the best checkpoint in {best}: {err}") from err
+
+
+def evaluate_run(run, episodes: int = 100, checkpoint: str = "best", seed: int = 0, progress: bool = False) -> dict:
+    """Table II metrics of every seed of run folder ``run`` and pooled over seeds."""
+    from algorithms.driver import ALGORITHMS
+
+    run = Path(run)
+    if not (run / "config.json").exists():
+        raise ValueError(f"{run} is not a run folder (no config.json)")
+    if episodes < 1:
+        raise ValueError(f"episodes must be >= 1, got {episodes}")
+    config = json.loads((run / "config.json").read_text())
+    env = marbler_jax.make(config["scenario"], **config["env"])
+    cfg_cls, _, greedy = ALGORITHMS[config["algo"]]
+    cfg = cfg_cls(**config["algorithm"])
+    params = restore_params(run, checkpoint)
+    n_seeds = jax.tree_util.tree_leaves(params)[0].shape[0]
+    per_seed, pooled = [], {}
+    seeds = range(n_seeds)
+    if progress:
+        from tqdm.auto import tqdm
+
+        seeds = tqdm(seeds, unit="seed", desc=f"evaluating {episodes} episodes")
+    for s in seeds:
+        p = jax.tree_util.tree_map(lambda x: jnp.asarray(x[s]), params)
+        values = greedy_episodes(env, greedy(env, cfg, p), episodes, jax.random.PRNGKey(seed + 1000 * s))
+        per_seed.append(summarize(values))
+        for k, v in values.items():
+            pooled.setdefault(k, []).append(v)
+    pooled_summary = summarize({k: np.concatenate(v) for k, v in pooled.items()})
+    return dict(scenario=config["scenario"], algo=config["algo"], checkpoint=checkpoint, episodes_per_seed=episodes,
+                seeds=n_seeds, pooled=pooled_summary, per_seed=per_seed,
+                paper=PAPER.get(config["scenario"], {}).get(config["algo"]))
+
+
+def markdown_table(result: dict) -> str:
+    """The evaluation as a Markdown table (ours vs the paper's simulated numbers)."""
+    paper = result.get("paper") or {}
+    lines = [f"### {result['algo']} on {result['scenario']} ({result['seeds']} seed(s) x "
+             f"{result['episodes_per_seed']} episodes, {result['checkpoint']} checkpoint)", "",
+             "| metric | marbler-jax | MARBLER paper (sim) |", "|---|---|---|"]
+    for key in METRICS:
+        if key not in result["pooled"]:
+            continue
+        ours = result["pooled"][key]
+        unit = " %" if key in ("collisions", "out_of_bounds") else ""
+        ref = paper.get(key)
+        ref_text = f"{ref[0]:g} ± {ref[1]:g}" if ref else ("0" if key in ("collisions", "out_of_bounds") and paper else "—")
+        lines.append(f"| {key.replace('_', ' ')}{unit} | {ours['mean']:.2f} ± {ours['std']:.2f} | {ref_text} |")
+    return "\n".join(lines) + "\n"
+
+
+__all__ = ["evaluate_run", "markdown_table", "greedy_episodes", "first_episodes", "restore_params", "PAPER"]

@@ -1,0 +1,260 @@
+"""Value-decomposed deep Q-learning over episodes: the loop shared by VDN and QMIX.
+
+VDN (:mod:`algorithms.vdn`) and QMIX (:mod:`algorithms.qmix`) differ only in the *mixer* that turns
+the agents' chosen Q-values ``[..., N]`` and the global state into the team value ``Q_tot``; this
+module is everything else, as in EPyMARL:
+
+* **Acting.** Each update resets ``num_envs`` envs and runs them for ``num_steps`` steps (default:
+  the episode length, so every sequence starts at an episode start; envs auto-reset, and an episode
+  that ends early is followed by the next one in the same sequence). Agents act epsilon-greedily on
+  :class:`~algorithms.networks.QAgent` Q-values (GRU or feed-forward; one parameter set + agent-ID
+  one-hot, or per-agent parameters). Epsilon falls linearly from ``eps_start`` to ``eps_finish``
+  over ``eps_decay_steps`` env steps.
+* **Replay.** The sequences go into an :mod:`algorithms.buffer` episode buffer of ``buffer_size``
+  sequences.
+* **Learning.** ``train_steps`` gradient steps per update, each on ``batch_size`` sampled
+  sequences: the recurrent agents are unrolled from a zero hidden state (reset again after every
+  ``done``), ``Q_tot`` of the taken actions is regressed on
+  ``r + gamma * (1 - done) * Q_tot_target(next)`` with double-Q action selection (``double_q``),
+  the team reward (the scenario's reported reward) and the target networks' mixer. Target networks
+  are copied every ``target_update_interval`` gradient steps (``tau = 1``) or Polyak-averaged with
+  ``tau`` after every step. Learning starts once the buffer holds ``learning_starts`` env steps.
+
+Choices (documented where EPyMARL differs): the end of an episode by MARBLER's step limit is
+treated as terminal (the observations carry no time, and MARBLER returns ``done`` there);
+``target_update_interval`` counts gradient steps (EPyMARL counts episodes, one gradient step per
+episode, so the numbers agree at EPyMARL's settings); env steps are counted for every simulated
+step.
+
+``make_train(env, cfg, mixer) -> train``: ``train(key) -> (params, metrics)``, with
+``train.init`` / ``train.run`` for chunked runs (same contract as :mod:`algorithms.ippo`).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import optax
+
+from algorithms import buffer as episode_buffer
+from algorithms.common import episode_info, rollout_metrics
+from algorithms.ippo import global_state
+from algorithms.networks import QAgent, apply_agents, init_agents, with_agent_ids
+from marbler_jax.rollout import StatefulPolicy
+
+
+@dataclasses.dataclass(frozen=True)
+class QConfig:
+    """Settings shared by VDN and QMIX (defaults: a fast CPU setting; see ``algorithms.presets``)."""
+
+    total_timesteps: int = 1_000_000
+    num_envs: int = 16               # sequences collected per update
+    num_steps: int = 0               # sequence length; 0 = the env's episode length
+    buffer_size: int = 5000          # sequences
+    batch_size: int = 32             # sequences per gradient step
+    train_steps: int = 1             # gradient steps per update
+    learning_starts: int = 10_000    # env steps collected before the first gradient step
+    lr: float = 3e-4
+    lr_decay: bool = False           # linear decay to 0 over the run
+    optimizer: str = "adam"          # adam | radam | rmsprop
+    max_grad_norm: float = 10.0
+    gamma: float = 0.99
+    eps_start: float = 1.0
+    eps_finish: float = 0.05
+    eps_decay_steps: int = 50_000    # env steps
+    target_update_interval: int = 200  # gradient steps between hard target copies (tau = 1)
+    tau: float = 1.0                 # < 1: Polyak averaging after every gradient step
+    double_q: bool = True
+    hidden: int = 128
+    recurrent: bool = True
+    shared: bool = True
+    agent_ids: bool = True
+
+    def validate(self) -> None:
+        for name in ("total_timesteps", "num_envs", "buffer_size", "batch_size", "train_steps", "hidden",
+                     "eps_decay_steps", "target_update_interval"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.num_steps < 0:
+            raise ValueError(f"num_steps must be >= 0 (0 = episode length), got {self.num_steps}")
+        if self.optimizer not in OPTIMIZERS:
+            raise ValueError(f"optimizer must be one of {sorted(OPTIMIZERS)}, got {self.optimizer!r}")
+        if not 0.0 < self.tau <= 1.0:
+            raise ValueError(f"tau must be in (0, 1], got {self.tau}")
+        if self.num_envs > self.buffer_size:
+            raise ValueError(f"num_envs ({self.num_envs}) must not exceed buffer_size ({self.buffer_size})")
+
+
+OPTIMIZERS = {"adam": optax.adam, "radam": optax.radam,
+              "rmsprop": lambda lr: optax.rmsprop(lr, decay=0.99, eps=1e-5)}
+
+
+def sequence_length(env, cfg: QConfig) -> int:
+    return cfg.num_steps or env.max_steps
+
+
+def agent_module(env, cfg: QConfig) -> QAgent:
+    return QAgent(env.num_actions, cfg.hidden, cfg.recurrent)
+
+
+def agent_inputs(cfg: QConfig, obs):
+    return with_agent_ids(obs) if cfg.agent_ids and cfg.shared else obs
+
+
+def make_train(env, cfg: QConfig, mixer: nn.Module):
+    """``train(key) -> (params, metrics)`` for ``env`` with the team-value ``mixer``
+    (``mixer.apply(params, q_chosen [..., N], state [..., S]) -> [...]``)."""
+    cfg.validate()
+    agent = agent_module(env, cfg)
+    n_agents, seq_len = env.num_agents, sequence_length(env, cfg)
+    steps_per_update = cfg.num_envs * seq_len
+    num_updates = max(1, cfg.total_timesteps // steps_per_update)
+    total_grad_steps = num_updates * cfg.train_steps
+    lr = optax.linear_schedule(cfg.lr, 0.0, total_grad_steps) if cfg.lr_decay else cfg.lr
+    tx = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), OPTIMIZERS[cfg.optimizer](lr))
+
+    def q_values(agent_params, hidden, obs, reset):
+        """One step: ``hidden [..., N, H]``, ``obs [..., N, D]``, ``reset [..., N, 1]``."""
+        return apply_agents(agent, agent_params, hidden, agent_inputs(cfg, obs), reset, shared=cfg.shared)
+
+    def q_sequence(agent_params, obs, resets):
+        """Q-values ``[T, B, N, A]`` along sequences ``obs [T, B, N, D]`` (``resets [T, B]``)."""
+        reset = jnp.broadcast_to(resets[..., None, None], resets.shape + (n_agents, 1))
+        hidden = agent.initial_hidden(obs.shape[1:3])
+        if not cfg.recurrent:          # no memory: all steps in one batched call
+            return q_values(agent_params, jnp.broadcast_to(hidden, obs.shape[:1] + hidden.shape), obs, reset)[1]
+
+        def step(hidden, inputs):
+            return q_values(agent_params, hidden, *inputs)
+
+        return jax.lax.scan(step, hidden, (obs, reset))[1]
+
+    def epsilon(env_steps):
+        frac = jnp.clip(env_steps / cfg.eps_decay_steps, 0.0, 1.0)
+        return cfg.eps_start + frac * (cfg.eps_finish - cfg.eps_start)
+
+    def init(key):
+        """Runner state of a fresh run: parameters, target copy, optimiser, empty buffer, key."""
+        key, k_agent, k_mixer, k_reset = jax.random.split(key, 4)
+        obs, _ = env.reset(k_reset)
+        hidden = agent.initial_hidden((n_agents,))
+        sample = (hidden[0], agent_inputs(cfg, obs)[0], jnp.zeros((1,), bool))
+        params = dict(agent=init_agents(agent, k_agent, sample, n_agents, cfg.shared),
+                      mixer=mixer.init(k_mixer, jnp.zeros((n_agents,)), global_state(obs)))
+        example = dict(obs=jnp.zeros((seq_len + 1,) + obs.shape, jnp.float32),
+                       actions=jnp.zeros((seq_len, n_agents), jnp.int32),
+                       reward=jnp.zeros((seq_len,), jnp.float32), done=jnp.zeros((seq_len,), bool))
+        return dict(params=params, target=params, opt_state=tx.init(params),
+                    buffer=episode_buffer.init(example, cfg.buffer_size), key=key, update=jnp.int32(0),
+                    grad_steps=jnp.int32(0))
+
+    def collect(params, key, eps):
+        """``num_envs`` fresh sequences of ``seq_len`` steps, env-major, plus the rollout metrics."""
+        k_reset, k_run = jax.random.split(key)
+        obs, state = jax.vmap(env.reset)(jax.random.split(k_reset, cfg.num_envs))
+
+        def step(carry, key):
+            obs, state, hidden, reset = carry
+            k_explore, k_random, k_env = jax.random.split(key, 3)
+            hidden, q = q_values(params["agent"], hidden, obs,
+                                 jnp.broadcast_to(reset[:, None, None], (cfg.num_envs, n_agents, 1)))
+            explore = jax.random.uniform(k_explore, (cfg.num_envs, n_agents)) < eps
+            random = jax.random.randint(k_random, (cfg.num_envs, n_agents), 0, env.num_actions)
+            actions = jnp.where(explore, random, jnp.argmax(q, -1)).astype(jnp.int32)
+            next_obs, state, rewards, done, info = jax.vmap(env.step)(
+                jax.random.split(k_env, cfg.num_envs), state, actions)
+            out = dict(obs=obs, actions=actions, reward=jax.vmap(env.scenario.team_reward)(rewards),
+                       done=done, info=episode_info(info))
+            return (next_obs, state, hidden, done), out
+
+        start = (obs, state, agent.initial_hidden((cfg.num_envs, n_agents)), jnp.ones((cfg.num_envs,), bool))
+        (last_obs, _, _, _), traj = jax.lax.scan(step, start, jax.random.split(k_run, seq_len))
+        metrics = rollout_metrics(traj["done"], traj["info"])
+        sequences = dict(obs=jnp.concatenate([traj["obs"], last_obs[None]], 0), actions=traj["actions"],
+                         reward=traj["reward"], done=traj["done"])
+        return jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), sequences), metrics
+
+    def loss_fn(params, target, batch):
+        data = jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), batch)   # time-major
+        resets = jnp.concatenate([jnp.ones_like(data["done"][:1]), data["done"]], 0)
+        q = q_sequence(params["agent"], data["obs"], resets)              # [T+1, B, N, A]
+        q_target = q_sequence(target["agent"], data["obs"], resets)
+        chosen = jnp.take_along_axis(q[:-1], data["actions"][..., None], -1)[..., 0]
+        if cfg.double_q:
+            best = jnp.argmax(jax.lax.stop_gradient(q[1:]), -1)
+            next_q = jnp.take_along_axis(q_target[1:], best[..., None], -1)[..., 0]
+        else:
+            next_q = q_target[1:].max(-1)
+        state = global_state(data["obs"])                                  # [T+1, B, S]
+        q_tot = mixer.apply(params["mixer"], chosen, state[:-1])
+        next_tot = mixer.apply(target["mixer"], next_q, state[1:])
+        y = data["reward"] + cfg.gamma * (1.0 - data["done"].astype(jnp.float32)) * next_tot
+        td = q_tot - jax.lax.stop_gradient(y)
+        return jnp.mean(td ** 2)
+
+    def learn(carry, key):
+        params, target, opt_state, buffer, grad_steps = carry
+        loss, grads = jax.value_and_grad(loss_fn)(params, target, episode_buffer.sample(buffer, key, cfg.batch_size))
+        updates, opt_state = tx.update(grads, opt_state, params)
+        params = optax.apply_updates(params, updates)
+        grad_steps = grad_steps + 1
+        if cfg.tau < 1.0:
+            target = optax.incremental_update(params, target, cfg.tau)
+        else:
+            copy = grad_steps % cfg.target_update_interval == 0
+            target = jax.tree_util.tree_map(lambda p, t: jnp.where(copy, p, t), params, target)
+        return (params, target, opt_state, buffer, grad_steps), loss
+
+    def update(runner, key):
+        k_collect, k_learn = jax.random.split(key)
+        env_steps = runner["update"] * steps_per_update
+        eps = epsilon(env_steps)
+        sequences, metrics = collect(runner["params"], k_collect, eps)
+        buffer = episode_buffer.add(runner["buffer"], sequences)
+        carry = (runner["params"], runner["target"], runner["opt_state"], buffer, runner["grad_steps"])
+        ready = (buffer.size * seq_len >= cfg.learning_starts) & (buffer.size >= 1)
+
+        def train(carry):
+            carry, losses = jax.lax.scan(learn, carry, jax.random.split(k_learn, cfg.train_steps))
+            return carry, losses.mean()
+
+        carry, loss = jax.lax.cond(ready, train, lambda c: (c, jnp.float32(jnp.nan)), carry)
+        params, target, opt_state, buffer, grad_steps = carry
+        runner = dict(params=params, target=target, opt_state=opt_state, buffer=buffer, key=runner["key"],
+                      update=runner["update"] + 1, grad_steps=grad_steps)
+        return runner, dict(metrics, loss=loss, epsilon=eps)
+
+    def run(runner, num_updates: int):
+        """Advance a runner state by ``num_updates`` updates (static): ``(runner, metrics)``."""
+        def one(runner, _):
+            key, sub = jax.random.split(runner["key"])
+            return update(dict(runner, key=key), sub)
+
+        return jax.lax.scan(one, runner, None, length=num_updates)
+
+    def train(key):
+        runner, metrics = run(init(key), num_updates)
+        return runner["params"], metrics
+
+    train.init, train.run = init, run
+    train.num_updates, train.steps_per_update = num_updates, steps_per_update
+    return train
+
+
+def greedy_policy(env, cfg: QConfig, params) -> StatefulPolicy:
+    """Greedy (argmax-Q) policy of trained ``params``; carries the agents' hidden state."""
+    agent = agent_module(env, cfg)
+
+    def step(key, obs, hidden, reset):
+        del key
+        reset = jnp.broadcast_to(reset[..., None, None], obs.shape[:-1] + (1,))
+        hidden, q = apply_agents(agent, params["agent"], hidden, agent_inputs(cfg, obs), reset, shared=cfg.shared)
+        return jnp.argmax(q, -1).astype(jnp.int32), hidden
+
+    return StatefulPolicy(initial_carry=lambda batch_shape: agent.initial_hidden(tuple(batch_shape) + (env.num_agents,)),
+                          step=step)
+
+
+__all__ = ["QConfig", "make_train", "greedy_policy", "sequence_length", "OPTIMIZERS"]
