@@ -9,6 +9,7 @@ Subcommands so far:
     train    -- train IPPO, MAPPO, VDN, QMIX or QMIX_NS on a scenario (presets fast/paper) and
                 write a run folder.
     evaluate -- MARBLER's Table II metrics of a run's best checkpoint (JSON + Markdown).
+    export   -- a run's policy as numpy ``.npy`` files with a numpy-only forward pass.
     quickstart -- the main job: train IPPO on simple_navigation, evaluate, plot, render a GIF.
     bench    -- run ``scripts/bench_cbf.py`` (barrier + integrator throughput).
 """
@@ -166,6 +167,20 @@ def _train(args) -> int:
     return 0
 
 
+def _export(args) -> int:
+    from algorithms.export import export_policy
+
+    spec = export_policy(args.run, args.out, seed_index=args.seed_index, checkpoint=args.checkpoint)
+    files = sorted(p.name for p in Path(args.out).iterdir())
+    size = sum(p.stat().st_size for p in Path(args.out).iterdir())
+    print(f"exported {spec['algo']} ({spec['kind']}, {'GRU' if spec['recurrent'] else 'feed-forward'}, "
+          f"{'shared' if spec['shared'] else 'per-agent'} parameters) for {spec['scenario']} to {args.out}: "
+          f"{len(files)} files, {size / 1024:.1f} KiB")
+    print("load with numpy only: from marbler_jax.numpy_policy import load_policy; "
+          f"load_policy({str(args.out)!r}).act(obs)")
+    return 0
+
+
 def _evaluate(args) -> int:
     import json
 
@@ -194,11 +209,14 @@ def _quickstart(args) -> int:
     result = train("simple_navigation", "ippo", 300_000, 2, out, hp={"lr": 1e-3})
     gif = out / "episode.gif"
     _episode_gif(out, gif)
+    from algorithms.export import export_policy
+
+    export_policy(out, out / "policy", checkpoint="final")
     better = result["trained"]["return"] > result["random"]["return"]
     print("\nquickstart outputs:")
-    for name in ("config.json", "metrics.jsonl", "learning_curve.png", "params.npz", "evaluation.json", "episode.gif"):
+    for name in ("config.json", "metrics.jsonl", "learning_curve.png", "params.npz", "evaluation.json", "episode.gif",
+                 "policy/ (numpy policy files: marbler_jax.numpy_policy.load_policy)"):
         print(f"  {out / name}")
-    print("  (export to a Robotarium bundle is not built yet)")
     return 0 if better else 1
 
 
@@ -275,6 +293,12 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--seed", type=int, default=0)
     ev.add_argument("--no-progress", action="store_true")
     ev.set_defaults(func=_evaluate)
+    ex = sub.add_parser("export", help="write a run's policy as numpy .npy files (runs without JAX)")
+    ex.add_argument("run", help="run folder written by `marbler-jax train`")
+    ex.add_argument("--out", required=True, help="policy folder to write (flat, .npy files only)")
+    ex.add_argument("--checkpoint", default="best", choices=["best", "final"])
+    ex.add_argument("--seed-index", type=int, default=0, help="which of the run's seeds to export")
+    ex.set_defaults(func=_export)
     qs = sub.add_parser("quickstart", help="the main job: train, evaluate, plot and render (a few minutes)")
     qs.add_argument("--out", default="runs/quickstart")
     qs.set_defaults(func=_quickstart)

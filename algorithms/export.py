@@ -1,0 +1,93 @@
+"""Export a run's trained agents to a numpy policy folder (see :mod:`marbler_jax.numpy_policy`).
+
+``export_policy(run, out)`` takes the run's best checkpoint (or ``params.npz`` with
+``checkpoint="final"``), keeps only what acting needs (the actor of IPPO/MAPPO, the agent network
+of VDN/QMIX/QMIX_NS; critics and mixers are training-only), and writes one ``float32`` ``.npy`` per
+tensor plus ``policy_spec.npy``. The folder is written under a temporary name and renamed into
+place, so an interrupted export never leaves a half-written policy.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from marbler_jax.numpy_policy import FORMAT, SPEC_FILE, NumpyPolicy
+
+
+def _flatten(tree, prefix=""):
+    out = {}
+    for key, value in tree.items():
+        name = f"{prefix}.{key}" if prefix else str(key)
+        if isinstance(value, dict):
+            out.update(_flatten(value, name))
+        else:
+            out[name] = np.asarray(value, np.float32)
+    return out
+
+
+def policy_tensors(algo: str, cfg, params) -> tuple[dict, dict]:
+    """``(spec fields, tensors)`` of one seed's parameters (pytrees of nested dicts)."""
+    params = jax.tree_util.tree_map(np.asarray, params)
+    if algo in ("ippo", "mappo"):
+        actor = params["params"]["actor"]
+        layers = sorted(actor, key=lambda name: int(name.split("_")[-1]))
+        fields = dict(kind="actor", recurrent=False, hidden=cfg.hidden, activation=cfg.activation,
+                      layers=[f"actor.{name}" for name in layers])
+        return fields, _flatten(actor, "actor")
+    agent = params["agent"]["params"]
+    fields = dict(kind="q_agent", recurrent=cfg.recurrent, hidden=cfg.hidden, activation="relu", layers=[])
+    return fields, _flatten(agent)
+
+
+def export_params(algo: str, cfg, params, env, out, extra: dict | None = None) -> NumpyPolicy:
+    """Write the policy folder ``out`` for one seed's ``params`` (``extra``: more spec fields);
+    returns the numpy policy."""
+    fields, tensors = policy_tensors(algo, cfg, params)
+    spec = dict(format=FORMAT, algo=algo, scenario=env.name, num_agents=env.num_agents, obs_dim=env.obs_dim,
+                num_actions=env.num_actions, shared=bool(cfg.shared), agent_ids=bool(cfg.agent_ids), **fields,
+                tensors={name: f"{name.replace('.', '_')}.npy" for name in tensors}, **(extra or {}))
+    out = Path(out)
+    tmp = out.with_name(out.name + ".tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    for name, array in tensors.items():
+        np.save(tmp / spec["tensors"][name], array, allow_pickle=False)
+    np.save(tmp / SPEC_FILE, np.array(json.dumps(spec, indent=1)), allow_pickle=False)
+    if out.exists():
+        old = out.with_name(out.name + ".old")
+        shutil.rmtree(old, ignore_errors=True)
+        os.replace(out, old)
+        os.replace(tmp, out)
+        shutil.rmtree(old)
+    else:
+        os.replace(tmp, out)
+    return NumpyPolicy(spec, tensors)
+
+
+def export_policy(run, out, seed_index: int = 0, checkpoint: str = "best") -> dict:
+    """Export seed ``seed_index`` of run folder ``run`` to ``out``; returns the spec."""
+    import marbler_jax
+    from algorithms.driver import ALGORITHMS
+    from algorithms.evaluate import restore_params
+
+    run = Path(run)
+    if not (run / "config.json").exists():
+        raise ValueError(f"{run} is not a run folder (no config.json)")
+    config = json.loads((run / "config.json").read_text())
+    env = marbler_jax.make(config["scenario"], **config["env"])
+    cfg = ALGORITHMS[config["algo"]][0](**config["algorithm"])
+    params = restore_params(run, checkpoint)
+    seeds = jax.tree_util.tree_leaves(params)[0].shape[0]
+    if not 0 <= seed_index < seeds:
+        raise ValueError(f"seed index {seed_index} out of range: the run has {seeds} seed(s)")
+    one = jax.tree_util.tree_map(lambda x: np.asarray(x[seed_index]), params)
+    extra = dict(env=config["env"], checkpoint=checkpoint, seed_index=seed_index)
+    return export_params(config["algo"], cfg, one, env, out, extra).spec
+
+
+__all__ = ["export_policy", "export_params", "policy_tensors"]

@@ -1,0 +1,113 @@
+"""Trained policies in plain numpy: load an exported policy folder and act greedily.
+
+This module imports numpy only (no JAX), so it runs where JAX is not installed (the Robotarium
+server). A policy folder, written by ``marbler-jax export`` (:mod:`algorithms.export`), is flat:
+
+* ``policy_spec.npy`` -- a 0-d unicode array holding JSON: ``format``, ``kind`` (``"q_agent"`` for
+  VDN/QMIX/QMIX_NS, ``"actor"`` for IPPO/MAPPO), ``recurrent``, ``shared``, ``agent_ids``,
+  ``num_agents``, ``obs_dim``, ``num_actions``, ``hidden``, ``activation``, ``layers`` (actor MLP
+  layer names in order) and ``tensors`` (parameter name -> file name).
+* one ``.npy`` per parameter tensor (``float32``; with a leading agent axis when not shared).
+
+Everything loads with ``np.load(path, allow_pickle=False)``. Network equations (the same as the
+flax modules in ``algorithms/networks.py``):
+
+* ``q_agent``: ``x = relu(obs W_fc1 + b)``; recurrent: flax ``GRUCell`` --
+  ``r = s(x W_ir + b_ir + h W_hr)``, ``z = s(x W_iz + b_iz + h W_hz)``,
+  ``n = tanh(x W_in + b_in + r * (h W_hn + b_hn))``, ``h' = (1 - z) n + z h``, ``x = h'``;
+  feed-forward: ``x = relu(x W_fc_hidden + b)``; ``q = x W_fc2 + b``.
+* ``actor``: ``Dense -> act -> ... -> Dense`` (logits).
+
+Greedy action = argmax over the last axis (first maximum on ties, as ``jnp.argmax``).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+FORMAT = "marbler-jax-policy/1"
+SPEC_FILE = "policy_spec.npy"
+
+
+def _sigmoid(x):
+    return 1.0 / (1.0 + np.exp(-x))
+
+
+class NumpyPolicy:
+    """A greedy multi-agent policy: ``act(obs [N, D], hidden) -> (actions [N], hidden, values)``."""
+
+    def __init__(self, spec: dict, tensors: dict[str, np.ndarray]):
+        if spec.get("format") != FORMAT:
+            raise ValueError(f"unsupported policy format {spec.get('format')!r}; expected {FORMAT!r}")
+        self.spec = spec
+        self.t = tensors
+        self.num_agents = int(spec["num_agents"])
+        self.obs_dim = int(spec["obs_dim"])
+        self.recurrent = bool(spec["kind"] == "q_agent" and spec["recurrent"])
+
+    def initial_hidden(self) -> np.ndarray:
+        """Zero memory ``[N, H]`` (``[N, 1]`` for memoryless policies)."""
+        width = int(self.spec["hidden"]) if self.recurrent else 1
+        return np.zeros((self.num_agents, width), np.float32)
+
+    def _dense(self, name, x):
+        kernel, bias = self.t[f"{name}.kernel"], self.t.get(f"{name}.bias")
+        if self.spec["shared"]:
+            y = x @ kernel
+        else:                      # per-agent parameters: agent i's kernel on agent i's row
+            y = np.einsum("...ni,nio->...no", x, kernel)
+        return y if bias is None else y + bias
+
+    def inputs(self, obs) -> np.ndarray:
+        obs = np.asarray(obs, np.float32)
+        if obs.shape[-2:] != (self.num_agents, self.obs_dim):
+            raise ValueError(f"observations must be [..., {self.num_agents}, {self.obs_dim}], got {obs.shape}")
+        if self.spec["agent_ids"] and self.spec["shared"]:
+            ids = np.broadcast_to(np.eye(self.num_agents, dtype=np.float32), obs.shape[:-1] + (self.num_agents,))
+            obs = np.concatenate([obs, ids], axis=-1)
+        return obs
+
+    def values(self, obs, hidden=None):
+        """``(Q-values or logits [..., N, A], new hidden [..., N, H])`` for ``obs [..., N, D]``."""
+        x = self.inputs(obs)
+        if self.spec["kind"] == "actor":
+            act = {"tanh": np.tanh, "relu": lambda v: np.maximum(v, 0)}[self.spec["activation"]]
+            layers = self.spec["layers"]
+            for name in layers[:-1]:
+                x = act(self._dense(name, x))
+            return self._dense(layers[-1], x), hidden
+        x = np.maximum(self._dense("fc1", x), 0)
+        if self.recurrent:
+            h = self.initial_hidden() if hidden is None else np.asarray(hidden, np.float32)
+            r = _sigmoid(self._dense("gru.ir", x) + self._dense("gru.hr", h))
+            z = _sigmoid(self._dense("gru.iz", x) + self._dense("gru.hz", h))
+            n = np.tanh(self._dense("gru.in", x) + r * self._dense("gru.hn", h))
+            hidden = (1.0 - z) * n + z * h
+            x = hidden
+        else:
+            x = np.maximum(self._dense("fc_hidden", x), 0)
+        return self._dense("fc2", x), hidden
+
+    def act(self, obs, hidden=None):
+        """Greedy actions ``[..., N]`` (int32), the new hidden state and the values."""
+        values, hidden = self.values(obs, hidden)
+        return np.argmax(values, axis=-1).astype(np.int32), hidden, values
+
+
+def load_policy(folder) -> NumpyPolicy:
+    """Load a policy folder written by ``marbler-jax export``; clear errors for missing/corrupt files."""
+    folder = Path(folder)
+    spec_path = folder / SPEC_FILE
+    if not spec_path.exists():
+        raise ValueError(f"{folder} holds no {SPEC_FILE}; export a run with `marbler-jax export RUN --out {folder}`")
+    try:
+        spec = json.loads(str(np.load(spec_path, allow_pickle=False)))
+        tensors = {name: np.load(folder / file, allow_pickle=False) for name, file in spec["tensors"].items()}
+    except (OSError, ValueError, KeyError) as err:
+        raise ValueError(f"cannot load the policy in {folder}: {err}") from err
+    return NumpyPolicy(spec, tensors)
+
+
+__all__ = ["NumpyPolicy", "load_policy", "FORMAT", "SPEC_FILE"]

@@ -1,0 +1,109 @@
+"""Exported numpy policies act like the JAX policies: values within 1e-5, identical greedy actions,
+on random observations and along whole episodes (hidden state carried and reset)."""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import marbler_jax
+from algorithms import ippo, mappo, qmix, vdn
+from algorithms.export import export_params
+from algorithms.networks import apply_agents
+from algorithms.q_learning import agent_inputs, agent_module
+from marbler_jax.numpy_policy import NumpyPolicy, load_policy
+
+CASES = {
+    "vdn-gru-shared": (vdn, vdn.VDNConfig(hidden=32)),
+    "qmix-ff-shared": (qmix, qmix.QMIXConfig(hidden=32, recurrent=False)),
+    "qmix_ns-gru": (qmix, qmix.QMIXNSConfig(hidden=32)),
+    "ippo-shared": (ippo, ippo.IPPOConfig(hidden=32)),
+    "mappo-per-agent": (mappo, mappo.MAPPOConfig(hidden=32, shared=False, activation="relu")),
+}
+ALGO = {"vdn-gru-shared": "vdn", "qmix-ff-shared": "qmix", "qmix_ns-gru": "qmix_ns", "ippo-shared": "ippo",
+        "mappo-per-agent": "mappo"}
+
+
+def _params(module, cfg, env, seed=0):
+    return module.make_train(env, cfg).init(jax.random.PRNGKey(seed))["params"]
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_numpy_policy_matches_jax_on_random_observations(case, tmp_path):
+    module, cfg = CASES[case]
+    env = marbler_jax.make("predator_capture_prey")
+    params = _params(module, cfg, env)
+    export_params(ALGO[case], cfg, params, env, tmp_path / "policy")
+    policy = load_policy(tmp_path / "policy")
+    assert all(p.suffix == ".npy" for p in (tmp_path / "policy").iterdir())
+    obs = np.random.default_rng(0).uniform(-1.5, 1.5, (10, 64, env.num_agents, env.obs_dim)).astype(np.float32)
+    if ALGO[case] in ("ippo", "mappo"):
+        jax_logits = apply_agents(ippo.ActorCritic(env.num_actions, cfg.hidden, cfg.layers, cfg.activation), params,
+                                  ippo.policy_inputs(cfg, jnp.asarray(obs)), ippo.critic_inputs(cfg, jnp.asarray(obs)),
+                                  shared=cfg.shared)[0]
+        np_logits, _ = policy.values(obs)
+        np.testing.assert_allclose(np_logits, jax_logits, atol=1e-5, rtol=1e-5)
+        np.testing.assert_array_equal(policy.act(obs)[0], np.argmax(np.asarray(jax_logits), -1))
+        return
+    agent = agent_module(env, cfg)
+    h_jax = agent.initial_hidden((64, env.num_agents))
+    h_np = policy.initial_hidden()[None].repeat(64, 0)
+    no_reset = jnp.zeros((64, env.num_agents, 1), bool)
+    for t in range(10):                                   # hidden state carried over 10 steps
+        h_jax, q_jax = apply_agents(agent, params["agent"], h_jax, agent_inputs(cfg, jnp.asarray(obs[t])), no_reset,
+                                    shared=cfg.shared)
+        actions, h_np, q_np = policy.act(obs[t], h_np)
+        np.testing.assert_allclose(q_np, q_jax, atol=1e-5, rtol=1e-5)
+        np.testing.assert_allclose(h_np, h_jax, atol=1e-5, rtol=1e-5)
+        np.testing.assert_array_equal(actions, np.argmax(np.asarray(q_jax), -1))
+
+
+def test_numpy_policy_replays_whole_episodes_like_the_jax_policy(tmp_path):
+    env = marbler_jax.make("material_transport", control_period=15)
+    cfg = vdn.VDNConfig(hidden=32)
+    params = _params(vdn, cfg, env, seed=3)
+    export_params("vdn", cfg, params, env, tmp_path / "p")
+    policy = load_policy(tmp_path / "p")
+    greedy = vdn.greedy_policy(env, cfg, params)
+    step = jax.jit(env.step)
+    act = jax.jit(greedy.step)
+    obs, state = env.reset(jax.random.PRNGKey(0))
+    h_jax, h_np, reset = greedy.initial_carry(()), None, True
+    finished, steps = 0, 0
+    while finished < 2 or steps < 100:                   # several episodes: the memory must reset between them
+        a_jax, h_jax = act(None, obs, h_jax, jnp.bool_(reset))
+        if reset:
+            h_np = policy.initial_hidden()
+        a_np, h_np, _ = policy.act(np.asarray(obs), h_np)
+        np.testing.assert_array_equal(a_np, np.asarray(a_jax), err_msg=f"step {steps}")
+        obs, state, _, done, _ = step(jax.random.PRNGKey(steps), state, a_jax)
+        reset, steps = bool(done), steps + 1
+        finished += int(reset)
+    assert finished >= 2
+
+
+def test_numpy_policy_module_needs_no_jax():
+    source = Path(__file__).resolve().parents[1] / "marbler_jax" / "numpy_policy.py"
+    imported = {alias.name.split(".")[0] for node in ast.walk(ast.parse(source.read_text()))
+                if isinstance(node, (ast.Import, ast.ImportFrom))
+                for alias in (node.names if isinstance(node, ast.Import) else [ast.alias(node.module or "")])}
+    assert imported <= {"__future__", "json", "pathlib", "numpy"}, imported
+
+
+def test_bad_policy_folders_are_reported(tmp_path):
+    with pytest.raises(ValueError, match="holds no policy_spec.npy"):
+        load_policy(tmp_path)
+    env = marbler_jax.make("simple_navigation")
+    cfg = ippo.IPPOConfig(hidden=8)
+    export_params("ippo", cfg, _params(ippo, cfg, env), env, tmp_path / "p")
+    next((tmp_path / "p").glob("actor_Dense_0_kernel.npy")).write_bytes(b"garbage")
+    with pytest.raises(ValueError, match="cannot load the policy"):
+        load_policy(tmp_path / "p")
+    policy = NumpyPolicy({"format": "marbler-jax-policy/1", "kind": "actor", "num_agents": 4,
+                                                      "obs_dim": 10, "shared": True, "agent_ids": True}, {})
+    with pytest.raises(ValueError, match=r"observations must be \[..., 4, 10\]"):
+        policy.inputs(np.zeros((3, 10)))
