@@ -168,10 +168,15 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     return result
 
 
+def flatten_params(params, sep: str = "/") -> dict[str, np.ndarray]:
+    """A parameter pytree of nested dicts as ``{"a<sep>b<sep>c": array}``."""
+    return {sep.join(str(getattr(k, "key", k)) for k in key_path): np.asarray(v)
+            for key_path, v in jax.tree_util.tree_flatten_with_path(params)[0]}
+
+
 def save_params(path: Path, params) -> None:
     """Write a parameter pytree of nested dicts as ``.npz`` (keys ``a/b/c``), atomically."""
-    flat = {"/".join(str(getattr(k, "key", k)) for k in key_path): np.asarray(v)
-            for key_path, v in jax.tree_util.tree_flatten_with_path(params)[0]}
+    flat = flatten_params(params)
     tmp = Path(path).with_name(Path(path).stem + ".tmp.npz")
     np.savez(tmp, **flat)
     os.replace(tmp, path)

@@ -16,18 +16,8 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from algorithms.driver import flatten_params
 from marbler_jax.numpy_policy import FORMAT, SPEC_FILE, NumpyPolicy
-
-
-def _flatten(tree, prefix=""):
-    out = {}
-    for key, value in tree.items():
-        name = f"{prefix}.{key}" if prefix else str(key)
-        if isinstance(value, dict):
-            out.update(_flatten(value, name))
-        else:
-            out[name] = np.asarray(value, np.float32)
-    return out
 
 
 def policy_tensors(algo: str, cfg, params) -> tuple[dict, dict]:
@@ -38,10 +28,14 @@ def policy_tensors(algo: str, cfg, params) -> tuple[dict, dict]:
         layers = sorted(actor, key=lambda name: int(name.split("_")[-1]))
         fields = dict(kind="actor", recurrent=False, hidden=cfg.hidden, activation=cfg.activation,
                       layers=[f"actor.{name}" for name in layers])
-        return fields, _flatten(actor, "actor")
+        return fields, _float32(flatten_params({"actor": actor}, "."))
     agent = params["agent"]["params"]
     fields = dict(kind="q_agent", recurrent=cfg.recurrent, hidden=cfg.hidden, activation="relu", layers=[])
-    return fields, _flatten(agent)
+    return fields, _float32(flatten_params(agent, "."))
+
+
+def _float32(tensors: dict) -> dict:
+    return {name: np.asarray(value, np.float32) for name, value in tensors.items()}
 
 
 def export_params(algo: str, cfg, params, env, out, extra: dict | None = None) -> NumpyPolicy:

@@ -214,7 +214,7 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         sequences, metrics = collect(runner["params"], k_collect, eps)
         buffer = episode_buffer.add(runner["buffer"], sequences)
         carry = (runner["params"], runner["target"], runner["opt_state"], buffer, runner["grad_steps"])
-        ready = (buffer.size * seq_len >= cfg.learning_starts) & (buffer.size >= 1)
+        ready = buffer.size * seq_len >= cfg.learning_starts
 
         def train(carry):
             carry, losses = jax.lax.scan(learn, carry, jax.random.split(k_learn, cfg.train_steps))

@@ -27,7 +27,7 @@ from algorithms.presets import preset
 
 def bench(scenario: str, algo: str, preset_name: str, updates: int, repeats: int) -> dict:
     env_overrides, hp, _ = preset(preset_name, scenario, algo)
-    if "learning_starts" in {f for f in ALGORITHMS[algo][0].__dataclass_fields__}:
+    if "learning_starts" in ALGORITHMS[algo][0].__dataclass_fields__:
         hp["learning_starts"] = 0
     env = marbler_jax.make(scenario, **env_overrides)
     cfg = build_config(algo, dict(hp, total_timesteps=10**9))

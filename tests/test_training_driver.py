@@ -8,6 +8,7 @@ import orbax.checkpoint as ocp
 import pytest
 
 import marbler_jax
+from tests.helpers import interrupt_at
 from algorithms.driver import load_params, load_run, train
 from algorithms.ippo import IPPOConfig, make_train
 
@@ -33,12 +34,8 @@ def test_interrupted_run_resumes_bit_exactly(tmp_path):
                   checkpoint_every=1, progress=False, log=lambda *a: None)
     train(out=tmp_path / "full", **common)
 
-    def interrupt(update):
-        if update == 2:
-            raise KeyboardInterrupt
-
     with pytest.raises(KeyboardInterrupt):
-        train(out=tmp_path / "cut", on_chunk=interrupt, **common)
+        train(out=tmp_path / "cut", on_chunk=interrupt_at(2), **common)
     with pytest.raises(ValueError, match="already holds checkpoints; pass --resume"):
         train(out=tmp_path / "cut", **common)
     with pytest.raises(ValueError, match=r"settings differ from the saved run in \['seeds'\]"):

@@ -10,6 +10,7 @@ import pytest
 import marbler_jax
 from algorithms import buffer as episode_buffer
 from algorithms import qmix, vdn
+from tests.helpers import interrupt_at
 from algorithms.driver import train
 from marbler_jax.rollout import episode_stats, make_rollout
 
@@ -105,12 +106,8 @@ def test_vdn_run_resumes_bit_exactly_with_its_replay_buffer(tmp_path):
                   eval_episodes=4, checkpoint_every=1, progress=False, log=lambda *a: None)
     train(out=tmp_path / "full", **common)
 
-    def interrupt(update):
-        if update == 2:
-            raise KeyboardInterrupt
-
     with pytest.raises(KeyboardInterrupt):
-        train(out=tmp_path / "cut", on_chunk=interrupt, **common)
+        train(out=tmp_path / "cut", on_chunk=interrupt_at(2), **common)
     train(out=tmp_path / "cut", resume=True, **common)
     full, cut = np.load(tmp_path / "full" / "params.npz"), np.load(tmp_path / "cut" / "params.npz")
     assert sorted(full) == sorted(cut) and any("gru" in name for name in full)
