@@ -9,7 +9,6 @@ place, so an interrupted export never leaves a half-written policy.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 from pathlib import Path
 
@@ -17,6 +16,7 @@ import jax
 import numpy as np
 
 from algorithms.driver import flatten_params
+from marbler_jax.deploy.bundle import replace_folder, write_bundle
 from marbler_jax.numpy_policy import FORMAT, SPEC_FILE, NumpyPolicy
 
 
@@ -52,19 +52,17 @@ def export_params(algo: str, cfg, params, env, out, extra: dict | None = None) -
     for name, array in tensors.items():
         np.save(tmp / spec["tensors"][name], array, allow_pickle=False)
     np.save(tmp / SPEC_FILE, np.array(json.dumps(spec, indent=1)), allow_pickle=False)
-    if out.exists():
-        old = out.with_name(out.name + ".old")
-        shutil.rmtree(old, ignore_errors=True)
-        os.replace(out, old)
-        os.replace(tmp, out)
-        shutil.rmtree(old)
-    else:
-        os.replace(tmp, out)
+    replace_folder(tmp, out)
     return NumpyPolicy(spec, tensors)
 
 
-def export_policy(run, out, seed_index: int = 0, checkpoint: str = "best") -> dict:
-    """Export seed ``seed_index`` of run folder ``run`` to ``out``; returns the spec."""
+def export_policy(run, out, seed_index: int = 0, checkpoint: str = "best", bundle=None, episodes: int = 2,
+                  bundle_seed: int = 0) -> dict:
+    """Export seed ``seed_index`` of run folder ``run`` to the policy folder ``out``; returns the spec.
+
+    With ``bundle`` (a folder), also write the Robotarium submission bundle there
+    (:func:`marbler_jax.deploy.bundle.write_bundle`) with ``episodes`` start states drawn from
+    ``bundle_seed``."""
     import marbler_jax
     from algorithms.driver import ALGORITHMS
     from algorithms.evaluate import restore_params
@@ -81,7 +79,10 @@ def export_policy(run, out, seed_index: int = 0, checkpoint: str = "best") -> di
         raise ValueError(f"seed index {seed_index} out of range: the run has {seeds} seed(s)")
     one = jax.tree_util.tree_map(lambda x: np.asarray(x[seed_index]), params)
     extra = dict(env=config["env"], checkpoint=checkpoint, seed_index=seed_index)
-    return export_params(config["algo"], cfg, one, env, out, extra).spec
+    spec = export_params(config["algo"], cfg, one, env, out, extra).spec
+    if bundle is not None:
+        write_bundle(env, out, bundle, config["algo"], episodes=episodes, seed=bundle_seed)
+    return spec
 
 
 __all__ = ["export_policy", "export_params", "policy_tensors"]

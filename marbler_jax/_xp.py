@@ -8,6 +8,7 @@ Robotarium submission bundle therefore runs the very same functions as training.
 """
 from __future__ import annotations
 
+import dataclasses
 import sys
 from typing import Any, Callable
 
@@ -53,3 +54,11 @@ def result_dtype(xp, *arrays: Any):
     if not xp.issubdtype(dtype, xp.floating):
         dtype = xp.float32
     return dtype
+
+
+def frozen_state(cls):
+    """Frozen dataclass with ``replace``: what the numpy bundle uses where training uses
+    ``flax.struct.dataclass`` for scenario states (flax is not installed on the Robotarium)."""
+    cls = dataclasses.dataclass(frozen=True)(cls)
+    cls.replace = lambda self, **changes: dataclasses.replace(self, **changes)
+    return cls

@@ -9,7 +9,7 @@ Subcommands so far:
     train    -- train IPPO, MAPPO, VDN, QMIX or QMIX_NS on a scenario (presets fast/paper) and
                 write a run folder.
     evaluate -- MARBLER's Table II metrics of a run's best checkpoint (JSON + Markdown).
-    export   -- a run's policy as numpy ``.npy`` files with a numpy-only forward pass.
+    export   -- a run's policy as numpy ``.npy`` files, and (``--bundle``) a flat Robotarium submission.
     quickstart -- the main job: train IPPO on simple_navigation, evaluate, plot, render a GIF.
     bench    -- run ``scripts/bench_cbf.py`` (barrier + integrator throughput).
 """
@@ -170,7 +170,8 @@ def _train(args) -> int:
 def _export(args) -> int:
     from algorithms.export import export_policy
 
-    spec = export_policy(args.run, args.out, seed_index=args.seed_index, checkpoint=args.checkpoint)
+    spec = export_policy(args.run, args.out, seed_index=args.seed_index, checkpoint=args.checkpoint,
+                         bundle=args.bundle, episodes=args.episodes, bundle_seed=args.bundle_seed)
     files = sorted(p.name for p in Path(args.out).iterdir())
     size = sum(p.stat().st_size for p in Path(args.out).iterdir())
     print(f"exported {spec['algo']} ({spec['kind']}, {'GRU' if spec['recurrent'] else 'feed-forward'}, "
@@ -178,7 +179,18 @@ def _export(args) -> int:
           f"{len(files)} files, {size / 1024:.1f} KiB")
     print("load with numpy only: from marbler_jax.numpy_policy import load_policy; "
           f"load_policy({str(args.out)!r}).act(obs)")
+    if args.bundle:
+        _print_bundle(Path(args.bundle))
     return 0
+
+
+def _print_bundle(folder: Path) -> None:
+    from marbler_jax.deploy.bundle import bundle_size
+
+    files = sorted(p.name for p in folder.iterdir())
+    print(f"Robotarium bundle: {folder} ({len(files)} flat files, {bundle_size(folder) / 1024:.1f} KiB). Upload every "
+          "file and mark main.py as the main file. Try it first in the simulator: cd into the folder and run "
+          "`MARBLER_JAX_HEADLESS=1 python main.py` where `pip install robotarium-python-simulator` is installed.")
 
 
 def _evaluate(args) -> int:
@@ -211,11 +223,12 @@ def _quickstart(args) -> int:
     _episode_gif(out, gif)
     from algorithms.export import export_policy
 
-    export_policy(out, out / "policy", checkpoint="final")
+    export_policy(out, out / "policy", checkpoint="final", bundle=out / "robotarium")
     better = result["trained"]["return"] > result["random"]["return"]
     print("\nquickstart outputs:")
     for name in ("config.json", "metrics.jsonl", "learning_curve.png", "params.npz", "evaluation.json", "episode.gif",
-                 "policy/ (numpy policy files: marbler_jax.numpy_policy.load_policy)"):
+                 "policy/ (numpy policy files: marbler_jax.numpy_policy.load_policy)",
+                 "robotarium/ (flat Robotarium submission bundle: upload all files, main.py is the main file)"):
         print(f"  {out / name}")
     return 0 if better else 1
 
@@ -298,6 +311,10 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--out", required=True, help="policy folder to write (flat, .npy files only)")
     ex.add_argument("--checkpoint", default="best", choices=["best", "final"])
     ex.add_argument("--seed-index", type=int, default=0, help="which of the run's seeds to export")
+    ex.add_argument("--bundle", default=None,
+                    help="also write a flat Robotarium submission bundle (main.py + files) to this folder")
+    ex.add_argument("--episodes", type=int, default=2, help="episodes the bundle runs (start states drawn now)")
+    ex.add_argument("--bundle-seed", type=int, default=0, help="seed of the bundle's start states")
     ex.set_defaults(func=_export)
     qs = sub.add_parser("quickstart", help="the main job: train, evaluate, plot and render (a few minutes)")
     qs.add_argument("--out", default="runs/quickstart")

@@ -33,7 +33,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from marbler_jax import cbf, controllers, physics
+from marbler_jax import physics
+from marbler_jax.step_rules import barrier_for, control, finish_step
 from marbler_jax.scenarios.base import Scenario, ScenarioConfig
 
 
@@ -56,19 +57,6 @@ class EnvState:
     episode_return: jax.Array
     collided: jax.Array
     out_of_bounds: jax.Array
-
-
-def barrier_for(config: ScenarioConfig, num_agents: int):
-    """The SI barrier for ``config.barrier_certificate`` (``None`` when ``"none"``)."""
-    kind = config.barrier_certificate
-    iterations = config.cbf_iterations if config.cbf_iterations is not None else 8 + 2 * num_agents
-    if kind == "none":
-        return None
-    if kind == "safe":
-        return cbf.make_barrier("si2", safety_radius=0.2, iterations=iterations)
-    if kind == "default":
-        return cbf.make_barrier("si", iterations=iterations)
-    return cbf.make_barrier(kind, iterations=iterations)
 
 
 class MarblerEnv:
@@ -147,15 +135,8 @@ class MarblerEnv:
         actions = self._check_actions(actions)
         goals = self.scenario.goals(state.poses, state.scenario, actions)
         poses, collided, outside, dist = self.run_ticks(state.poses, goals, velocities)
-        violated = (collided | outside) & self.config.penalize_violations
-        scenario_state, task_rewards, completed = self.scenario.update(poses, state.scenario, actions)
-        scenario_state = jax.tree_util.tree_map(
-            lambda old, new: jnp.where(violated, old, new), state.scenario, scenario_state)
-        dtype = state.poses.dtype
-        rewards = jnp.where(violated, jnp.asarray(self.scenario.violation_reward, dtype),
-                            jnp.asarray(task_rewards, dtype))
-        step = state.step + 1
-        done = violated | (step > self.config.max_episode_steps) | (completed & ~violated)
+        scenario_state, rewards, done, violated, obs, step = finish_step(
+            self.scenario, poses, state.scenario, actions, collided, outside, state.step)
         episode_return = state.episode_return + self.scenario.team_reward(rewards)
         next_state = EnvState(
             poses=poses, scenario=scenario_state, step=step, episode_return=episode_return,
@@ -173,8 +154,6 @@ class MarblerEnv:
             "dist_travelled": dist,
             **{k: jnp.asarray(v) for k, v in self.scenario.metrics(scenario_state).items()},
         }
-        seen = self.scenario.observation_state(state.scenario, scenario_state)
-        obs = jnp.asarray(self.scenario.observe(poses, seen), poses.dtype)
         return obs, next_state, rewards, done, info
 
     def state_to_poses(self, state: EnvState) -> jax.Array:
@@ -184,7 +163,7 @@ class MarblerEnv:
     # --- the control loop --------------------------------------------------------------------
     def velocities(self, poses, goals):
         """MARBLER's controller: SI position control of the projection point -> CBF -> (v, omega)."""
-        return controllers.marbler_velocities(poses, goals, self.barrier)
+        return control(poses, goals, self.barrier)
 
     def run_ticks(self, poses, goals, velocities=None):
         """``update_frequency`` ticks with control refresh every ``control_period`` ticks.

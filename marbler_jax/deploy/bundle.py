@@ -1,0 +1,97 @@
+"""Write a Robotarium submission bundle: a flat folder that runs a numpy policy with numpy + rps only.
+
+Contents (every file has an extension the Robotarium accepts):
+
+* ``main.py`` -- the entry point (mark it as the main file when uploading);
+* ``robotarium_loop.py``, ``step_rules.py``, ``physics.py``, ``controllers.py``, ``cbf.py``, ``_xp.py``,
+  ``numpy_policy.py``, ``scenario_base.py`` and the scenario's module -- the package's own modules,
+  flattened by :mod:`marbler_jax.deploy.flatten` (flat imports, no JAX);
+* ``policy_spec.npy`` and one ``.npy`` per weight tensor (:mod:`marbler_jax.numpy_policy`);
+* ``bundle_config.npy`` -- the scenario config the policy was trained with (same control period,
+  barrier, update frequency, horizon) plus what ``main.py`` needs to rebuild the scenario;
+* ``initial_poses.npy`` ``[E, N, 3]`` and ``initial_<field>.npy`` -- the start states of the ``E``
+  episodes, sampled at export time with the env's own ``reset`` (JAX randomness stays in training;
+  the deployed run is reproducible and can be replayed in the JAX env from the same states).
+
+The folder is written under a temporary name, checked with
+:func:`marbler_jax.deploy.flatten.check_bundle_folder`, and renamed into place.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from marbler_jax.deploy.flatten import CORE_MODULES, check_bundle_folder, flatten_modules
+from marbler_jax.deploy.main import BUNDLE_FORMAT, CONFIG_FILE
+
+
+def initial_states(env, episodes: int, seed: int = 0):
+    """``(poses [E, N, 3] float64, {field: [E, ...]}, state class)`` from ``env.reset`` with keys split
+    from ``seed``."""
+    if episodes < 1:
+        raise ValueError(f"episodes must be >= 1, got {episodes}")
+    keys = jax.random.split(jax.random.PRNGKey(seed), episodes)
+    _, states = jax.vmap(env.reset)(keys)
+    fields = {f.name: np.asarray(getattr(states.scenario, f.name)) for f in dataclasses.fields(states.scenario)}
+    return np.asarray(states.poses, np.float64), fields, type(states.scenario)
+
+
+def write_bundle(env, policy_dir, out, algo: str, episodes: int = 2, seed: int = 0) -> dict:
+    """Write the bundle for ``env`` (a :class:`marbler_jax.env.MarblerEnv`) and the numpy policy in
+    ``policy_dir`` to the folder ``out``; returns the bundle config."""
+    scenario = env.scenario
+    module = type(scenario).__module__
+    stem = module.rsplit(".", 1)[-1]
+    if stem in CORE_MODULES.values():
+        raise ValueError(f"scenario module name {stem!r} clashes with a bundled module; rename it")
+    names = dict(CORE_MODULES, **{module: stem})
+    poses, fields, state_cls = initial_states(env, episodes, seed)
+    config = dict(
+        format=BUNDLE_FORMAT, scenario=env.name, algo=algo, module=stem, scenario_class=type(scenario).__name__,
+        state_class=state_cls.__name__, state_fields=sorted(fields), config=dataclasses.asdict(env.config),
+        episodes=episodes, seed=seed, num_agents=env.num_agents,
+    )
+    out = Path(out)
+    tmp = out.with_name(out.name + ".tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    for flat, source in flatten_modules(names).items():
+        (tmp / f"{flat}.py").write_text(source)
+    for entry in Path(policy_dir).iterdir():
+        if entry.is_dir() or (tmp / entry.name).exists():
+            raise ValueError(f"policy folder entry {entry.name} cannot go into a flat bundle")
+        shutil.copyfile(entry, tmp / entry.name)
+    np.save(tmp / "initial_poses.npy", poses, allow_pickle=False)
+    for name, value in fields.items():
+        np.save(tmp / f"initial_{name}.npy", value, allow_pickle=False)
+    np.save(tmp / CONFIG_FILE, np.array(json.dumps(config, indent=1)), allow_pickle=False)
+    check_bundle_folder(tmp)
+    replace_folder(tmp, out)
+    return config
+
+
+def replace_folder(tmp, out) -> None:
+    """Move the finished folder ``tmp`` to ``out``, replacing any old ``out`` (never half-written)."""
+    tmp, out = Path(tmp), Path(out)
+    if out.exists():
+        old = out.with_name(out.name + ".old")
+        shutil.rmtree(old, ignore_errors=True)
+        os.replace(out, old)
+        os.replace(tmp, out)
+        shutil.rmtree(old)
+    else:
+        os.replace(tmp, out)
+
+
+def bundle_size(folder) -> int:
+    """Total bytes of the bundle's files."""
+    return sum(p.stat().st_size for p in Path(folder).iterdir())
+
+
+__all__ = ["write_bundle", "initial_states", "bundle_size", "replace_folder"]

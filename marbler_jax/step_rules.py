@@ -1,0 +1,80 @@
+"""MARBLER's per-step rules, shared by the JAX env and the numpy Robotarium bundle.
+
+Everything here works on numpy *or* JAX arrays (see :mod:`marbler_jax._xp`): the batched env
+(:mod:`marbler_jax.env`) calls it inside ``jit``/``vmap``, and the submission bundle's ``main.py``
+calls the very same functions on the poses the Robotarium returns. What differs between the two is
+only who moves the robots: :func:`marbler_jax.physics.held_ticks` in training, ``rps`` (or the real
+robots) in deployment.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+from marbler_jax import cbf, controllers
+from marbler_jax._xp import namespace
+
+
+def barrier_for(config, num_agents: int):
+    """The SI barrier for ``config.barrier_certificate`` (``None`` when ``"none"``).
+
+    ``"safe"`` is MARBLER's default (certificate2 with safety radius 0.2), ``"default"`` MARBLER's
+    ``barrier_certificate: default`` (certificate, radius 0.17); other names are
+    :func:`marbler_jax.cbf.make_barrier` kinds. Iterations: ``config.cbf_iterations`` or 8 + 2N.
+    """
+    kind = config.barrier_certificate
+    iterations = config.cbf_iterations if config.cbf_iterations is not None else 8 + 2 * num_agents
+    if kind == "none":
+        return None
+    if kind == "safe":
+        return cbf.make_barrier("si2", safety_radius=0.2, iterations=iterations)
+    if kind == "default":
+        return cbf.make_barrier("si", iterations=iterations)
+    return cbf.make_barrier(kind, iterations=iterations)
+
+
+def control(poses, goals, barrier):
+    """One control refresh: SI position control of the projection point -> barrier -> (v, omega) ``[N, 2]``."""
+    return controllers.marbler_velocities(poses, goals, barrier)
+
+
+def select_state(cond, old, new):
+    """Field-wise ``where(cond, old, new)`` of two scenario states (dataclasses of arrays)."""
+    xp = namespace(*(getattr(new, f.name) for f in dataclasses.fields(new)))
+    return dataclasses.replace(new, **{
+        f.name: xp.where(cond, getattr(old, f.name), getattr(new, f.name)) for f in dataclasses.fields(new)})
+
+
+def finish_step(scenario, poses, scenario_state, actions, collided, outside, step):
+    """Close one env step after its ticks ran (MARBLER's ``roboEnv.step`` tail).
+
+    With ``penalize_violations`` a collision or boundary violation voids the step's task events,
+    gives every agent ``scenario.violation_reward`` and ends the episode. Otherwise the scenario's
+    task events apply; the episode ends when the step counter exceeds ``max_episode_steps`` or the
+    task is complete.
+
+    Args:
+        scenario: a :class:`marbler_jax.scenarios.base.Scenario`.
+        poses: ``[N, 3]`` poses after the step's ticks.
+        scenario_state: the scenario state at the start of the step.
+        actions: ``[N]`` int actions of the step.
+        collided, outside: whether a checked tick of the step violated (bool scalars).
+        step: steps taken before this one (int).
+
+    Returns:
+        ``(scenario_state, rewards [N], done, violated, obs [N, obs_dim], step + 1)``.
+    """
+    xp = namespace(poses)
+    config = scenario.config
+    dtype = poses.dtype
+    violated = (collided | outside) & config.penalize_violations
+    new_state, task_rewards, completed = scenario.update(poses, scenario_state, actions)
+    new_state = select_state(violated, scenario_state, new_state)
+    rewards = xp.where(violated, xp.asarray(scenario.violation_reward, dtype=dtype), xp.asarray(task_rewards, dtype=dtype))
+    step = step + 1
+    done = violated | (step > config.max_episode_steps) | (completed & ~violated)
+    seen = scenario.observation_state(scenario_state, new_state)
+    obs = xp.asarray(scenario.observe(poses, seen), dtype=dtype)
+    return new_state, rewards, done, violated, obs, step
+
+
+__all__ = ["barrier_for", "control", "select_state", "finish_step"]

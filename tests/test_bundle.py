@@ -1,0 +1,176 @@
+"""Robotarium submission bundles: flat, JAX-free, and running in the real simulator exactly like the env.
+
+The real-simulator test installs ``robotarium-python-simulator`` from PyPI (it imports as ``rps``)
+into a separate virtualenv without JAX (``.rps-venv/``, kept between runs; numpy 1.24, the oldest
+numpy we support) and runs each bundle's ``main.py`` there headless. Set ``MARBLER_JAX_SKIP_RPS=1``
+to skip it on a machine without PyPI access.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+import marbler_jax
+from algorithms import ippo, mappo, qmix, vdn
+from algorithms.driver import train
+from algorithms.export import export_params
+from marbler_jax.cli import main as cli
+from marbler_jax.deploy.bundle import write_bundle
+from marbler_jax.deploy.flatten import check_bundle_folder, flatten_module
+from marbler_jax.deploy.replay import replay_trace
+
+REPO = Path(__file__).resolve().parents[1]
+RPS_VENV = REPO / ".rps-venv"
+
+# scenario -> (algorithm module, config, algo name, env overrides): every architecture we train
+UNTRAINED = {
+    "predator_capture_prey": (vdn, vdn.VDNConfig(hidden=16), "vdn", {"control_period": 15}),
+    "warehouse": (qmix, qmix.QMIXNSConfig(hidden=16), "qmix_ns", {}),
+    "material_transport": (mappo, mappo.MAPPOConfig(hidden=16, shared=False), "mappo", {}),
+    "arctic_transport": (qmix, qmix.QMIXConfig(hidden=16, recurrent=False), "qmix", {}),
+}
+
+
+@pytest.fixture(scope="module")
+def bundles(tmp_path_factory):
+    """A trained IPPO Simple Navigation bundle (via the CLI) and untrained bundles of the other scenarios."""
+    root = tmp_path_factory.mktemp("bundles")
+    run = root / "sn-run"
+    train("simple_navigation", "ippo", 300_000, 1, run, hp={"lr": 1e-3}, eval_episodes=64, progress=False,
+          log=lambda *a, **k: None)
+    assert cli(["export", str(run), "--out", str(root / "sn-policy"), "--bundle", str(root / "simple_navigation"),
+                "--checkpoint", "final", "--episodes", "2"]) == 0
+    out = {"simple_navigation": root / "simple_navigation"}
+    for name, (module, cfg, algo, overrides) in UNTRAINED.items():
+        env = marbler_jax.make(name, **overrides)
+        params = module.make_train(env, cfg).init(jax.random.PRNGKey(1))["params"]
+        export_params(algo, cfg, params, env, root / f"{name}-policy")
+        write_bundle(env, root / f"{name}-policy", root / name, algo, episodes=1, seed=3)
+        out[name] = root / name
+    return out
+
+
+def test_bundles_are_flat_jax_free_and_carry_the_training_config(bundles):
+    for name, folder in bundles.items():
+        files = check_bundle_folder(folder)
+        assert {"main.py", "robotarium_loop.py", "cbf.py", "physics.py", "policy_spec.npy", "bundle_config.npy",
+                "initial_poses.npy", f"{name}.py"} <= set(files)
+        config = json.loads(str(np.load(folder / "bundle_config.npy", allow_pickle=False)))
+        assert config["scenario"] == name
+        assert config["config"]["control_period"] == (15 if name == "predator_capture_prey" else 1)
+        for source in folder.glob("*.py"):
+            imports = [line for line in source.read_text().splitlines() if line.lstrip().startswith(("import", "from"))]
+            assert not [line for line in imports if "marbler_jax" in line or "jax" in line.split()], source.name
+    scenario = (bundles["predator_capture_prey"] / "predator_capture_prey.py").read_text()
+    assert "def reset" not in scenario and "def observe" in scenario and "@frozen_state" in scenario
+
+
+@pytest.mark.parametrize("bad", ["folder", "json", "import_jax", "from_flax"])
+def test_bundle_check_rejects_what_the_robotarium_cannot_run(bundles, tmp_path, bad):
+    folder = tmp_path / "b"
+    shutil.copytree(bundles["predator_capture_prey"], folder)
+    if bad == "folder":
+        (folder / "models").mkdir()
+    elif bad == "json":
+        (folder / "config.json").write_text("{}")
+    elif bad == "import_jax":
+        (folder / "extra.py").write_text("import numpy as np\nimport jax.numpy as jnp\n")
+    else:
+        (folder / "main.py").write_text((folder / "main.py").read_text() + "\nfrom flax import struct\n")
+    with pytest.raises(ValueError):
+        check_bundle_folder(folder)
+
+
+def test_flattening_refuses_jax_in_the_shared_step_logic(tmp_path, monkeypatch):
+    (tmp_path / "my_scenario.py").write_text(
+        "import jax.numpy as jnp\n\n"
+        "def reset(key):\n    return jnp.zeros(3)\n\n"
+        "def observe(poses):\n    return jnp.asarray(poses)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(ValueError, match="observe"):
+        flatten_module("my_scenario", {"my_scenario": "my_scenario"})
+
+
+def _rps_python() -> Path:
+    """Python of a virtualenv with the PyPI Robotarium simulator and numpy 1.24, without JAX."""
+    if os.environ.get("MARBLER_JAX_SKIP_RPS") == "1":
+        pytest.skip("MARBLER_JAX_SKIP_RPS=1")
+    python = RPS_VENV / "bin" / "python"
+    ready = python.exists() and subprocess.run([python, "-c", "import rps.robotarium, numpy"],
+                                               capture_output=True).returncode == 0
+    if not ready:
+        subprocess.run([sys.executable, "-m", "venv", "--clear", str(RPS_VENV)], check=True)
+        subprocess.run([python, "-m", "pip", "install", "-q", "--disable-pip-version-check",
+                        "robotarium-python-simulator", "numpy>=1.24,<1.25"], check=True, timeout=900)
+    assert subprocess.run([python, "-c", "import jax"], capture_output=True).returncode != 0, "rps venv has JAX"
+    return python
+
+
+def _run_bundle(python, folder, trace, extra_env=None, prelude=None):
+    env = dict(os.environ, MARBLER_JAX_HEADLESS="1", MARBLER_JAX_TRACE=str(trace), **(extra_env or {}))
+    env.pop("PYTHONPATH", None)
+    command = [str(python), "main.py"] if prelude is None else [str(python), "-c", prelude]
+    result = subprocess.run(command, cwd=folder, env=env, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stdout + result.stderr
+    return result.stdout
+
+
+def test_bundles_run_in_the_real_rps_simulator_like_the_env(bundles, tmp_path):
+    python = _rps_python()
+    report = {}
+    pairs = []
+    for name, folder in bundles.items():
+        trace = tmp_path / f"trace-{name}"
+        stdout = _run_bundle(python, folder, trace)
+        episodes = 2 if name == "simple_navigation" else 1
+        assert stdout.count("episode ") == episodes and "##### DEBUG OUTPUT #####" in stdout, stdout
+        if name == "simple_navigation":   # the trained policy: rps recorded no collision, no boundary violation
+            assert "collided" not in stdout and "outside the boundaries" not in stdout, stdout
+            assert "violation=False" in stdout
+        else:                              # untrained policies may violate: the bundle saw what rps saw
+            assert ("outside the boundaries" not in stdout) or "out_of_bounds=True" in stdout, stdout
+            assert ("collided" not in stdout) or "collisions=True" in stdout, stdout
+        # float32 (training precision): every step from the logged pose agrees to float32 rounding
+        for result in replay_trace(folder, trace):
+            assert result["env_done"] and result["actions_agree"], (name, result)
+            assert result["max_step_deviation"] <= 1e-5, (name, result)
+            assert result["max_reward_deviation"] <= 1e-4, (name, result)
+            report[(name, result["episode"])] = result["max_pose_deviation"]
+        pairs += [str(folder), str(trace)]
+    # float64: the bundle and the env run the same logic, so whole episodes agree to rounding
+    replay = subprocess.run([sys.executable, "-m", "marbler_jax.deploy.replay", *pairs], capture_output=True,
+                            text=True, env=dict(os.environ, JAX_ENABLE_X64="1"), timeout=600)
+    assert replay.returncode == 0, replay.stderr
+    results = [json.loads(line) for line in replay.stdout.splitlines()]
+    assert len(results) == len(report)
+    for result in results:
+        assert result["max_pose_deviation"] <= 1e-6, result
+        assert result["max_step_deviation"] <= 1e-9 and result["max_reward_deviation"] <= 1e-9, result
+        assert result["actions_agree"] and abs(result["bundle_return"] - result["env_return"]) <= 1e-6, result
+    print("largest pose deviation per episode, float32 / float64 replay [m]:")
+    for (name, episode), dev32 in report.items():
+        dev64 = next(r["max_pose_deviation"] for r in results if r["bundle"].endswith(name) and r["episode"] == episode)
+        print(f"  {name} episode {episode}: {dev32:.2e} / {dev64:.2e}")
+
+
+def test_bundle_runs_with_numpy_2_and_jax_blocked(bundles, tmp_path):
+    """The server has numpy 2.x: run the trained bundle in this interpreter with JAX made unimportable."""
+    python = _rps_python()
+    site = subprocess.run([python, "-c", "import rps, os; print(os.path.dirname(os.path.dirname(rps.__file__)))"],
+                          capture_output=True, text=True, check=True).stdout.strip()
+    shutil.copytree(Path(site) / "rps", tmp_path / "rps_only" / "rps")
+    prelude = (f"import sys; sys.modules.update(jax=None, jaxlib=None, flax=None); "
+               f"sys.path[:0] = ['.', {str(tmp_path / 'rps_only')!r}]; import numpy; "
+               "assert numpy.__version__ >= '2', numpy.__version__; "
+               "import runpy; runpy.run_path('main.py', run_name='__main__')")
+    stdout = _run_bundle(sys.executable, bundles["simple_navigation"], tmp_path / "trace", {"MARBLER_JAX_EPISODES": "1"},
+                         prelude=prelude)
+    assert "episode 1/1" in stdout and "collided" not in stdout
