@@ -195,13 +195,24 @@ def load_params(path: Path) -> dict:
     return params
 
 
-def load_run(run: Path, seed_index: int = 0):
-    """``(env, greedy policy)`` of seed ``seed_index`` of a finished run folder."""
+def load_run(run: Path, seed_index: int = 0, checkpoint: str = "final"):
+    """``(env, greedy policy)`` of seed ``seed_index`` of a run folder (``checkpoint``: ``"final"``
+    parameters of a finished run or the ``"best"`` orbax checkpoint)."""
+    from algorithms.evaluate import restore_params
+
     config = json.loads((Path(run) / "config.json").read_text())
     env = marbler_jax.make(config["scenario"], **config["env"])
     cfg_cls, _, greedy = ALGORITHMS[config["algo"]]
-    params = jax.tree_util.tree_map(lambda x: x[seed_index], load_params(Path(run) / "params.npz"))
+    params = select_seed(restore_params(Path(run), checkpoint), seed_index)
     return env, greedy(env, cfg_cls(**config["algorithm"]), params)
+
+
+def select_seed(params, seed_index: int):
+    """One seed's parameters (numpy leaves) from seed-major ``params``, with a clear range error."""
+    seeds = jax.tree_util.tree_leaves(params)[0].shape[0]
+    if not 0 <= seed_index < seeds:
+        raise ValueError(f"seed index {seed_index} out of range: the run has {seeds} seed(s)")
+    return jax.tree_util.tree_map(lambda x: np.asarray(x[seed_index]), params)
 
 
 def _nan_stat(fn, x):
@@ -239,4 +250,4 @@ def plot_learning_curve(metrics_path: Path, png: Path, title: str) -> None:
 
 
 __all__ = ["train", "evaluate", "plot_learning_curve", "ALGORITHMS", "atomic_write", "save_params",
-           "load_params", "load_run"]
+           "load_params", "load_run", "select_seed"]

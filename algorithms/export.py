@@ -15,7 +15,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from algorithms.driver import flatten_params
+from algorithms.driver import flatten_params, select_seed
 from marbler_jax.deploy.bundle import replace_folder, write_bundle
 from marbler_jax.numpy_policy import FORMAT, SPEC_FILE, NumpyPolicy
 
@@ -73,11 +73,7 @@ def export_policy(run, out, seed_index: int = 0, checkpoint: str = "best", bundl
     config = json.loads((run / "config.json").read_text())
     env = marbler_jax.make(config["scenario"], **config["env"])
     cfg = ALGORITHMS[config["algo"]][0](**config["algorithm"])
-    params = restore_params(run, checkpoint)
-    seeds = jax.tree_util.tree_leaves(params)[0].shape[0]
-    if not 0 <= seed_index < seeds:
-        raise ValueError(f"seed index {seed_index} out of range: the run has {seeds} seed(s)")
-    one = jax.tree_util.tree_map(lambda x: np.asarray(x[seed_index]), params)
+    one = select_seed(restore_params(run, checkpoint), seed_index)
     extra = dict(env=config["env"], checkpoint=checkpoint, seed_index=seed_index)
     spec = export_params(config["algo"], cfg, one, env, out, extra).spec
     if bundle is not None:

@@ -9,6 +9,7 @@ Subcommands so far:
     train    -- train IPPO, MAPPO, VDN, QMIX or QMIX_NS on a scenario (presets fast/paper) and
                 write a run folder.
     evaluate -- MARBLER's Table II metrics of a run's best checkpoint (JSON + Markdown).
+    render   -- GIF/MP4 of a run's greedy policy or a scenario with random actions (``--envs K``: a grid).
     export   -- a run's policy as numpy ``.npy`` files, and (``--bundle``) a flat Robotarium submission.
     quickstart -- the main job: train IPPO on simple_navigation, evaluate, plot, render a GIF.
     bench    -- run ``scripts/bench_cbf.py`` (barrier + integrator throughput).
@@ -126,14 +127,11 @@ def _rollout(args) -> int:
     print(f"  compile {compile_s:.1f} s, run {run_s:.2f} s = {args.envs * args.steps / run_s:,.0f} env-steps/s")
     print("  finished episodes: " + ", ".join(f"{k} {v:.3f}" for k, v in stats.items()))
     if args.gif:
-        import imageio.v2 as imageio
+        from marbler_jax.render import episode_frames, save_movie
 
-        from marbler_jax.render import render_episode
-
-        frames = render_episode(env, None, jax.random.PRNGKey(args.seed + 2))
-        Path(args.gif).parent.mkdir(parents=True, exist_ok=True)
-        imageio.mimsave(args.gif, np.stack(frames), duration=0.25, loop=0)
-        print(f"  GIF of env 0 ({len(frames)} frames): {args.gif}")
+        frames = episode_frames(env, None, jax.random.PRNGKey(args.seed + 2))
+        save_movie(frames, args.gif, fps=4)
+        print(f"  GIF of one episode ({len(frames)} frames): {args.gif}")
     return 0
 
 
@@ -235,15 +233,41 @@ def _quickstart(args) -> int:
 
 def _episode_gif(run: Path, gif: Path) -> None:
     """GIF of one greedy episode of the run's first seed."""
-    import imageio.v2 as imageio
     import jax
-    import numpy as np
 
     from algorithms.driver import load_run
-    from marbler_jax.render import render_episode
+    from marbler_jax.render import episode_frames, save_movie
 
     env, policy = load_run(run)
-    imageio.mimsave(gif, np.stack(render_episode(env, policy, jax.random.PRNGKey(1))), duration=0.15, loop=0)
+    save_movie(episode_frames(env, policy, jax.random.PRNGKey(1)), gif)
+
+
+def _render(args) -> int:
+    import jax
+
+    import marbler_jax
+    from marbler_jax.render import episode_frames, save_movie
+
+    if args.envs < 1:
+        raise ValueError(f"--envs must be >= 1, got {args.envs}")
+    target = Path(args.target)
+    if (target / "config.json").exists():
+        from algorithms.driver import load_run
+
+        if args.set:
+            raise ValueError("--set applies to a scenario name; a run renders with the settings it was trained with")
+        env, policy = load_run(target, seed_index=args.seed_index, checkpoint=args.checkpoint)
+        what = f"greedy policy of {target} ({args.checkpoint} parameters, seed {args.seed_index})"
+    elif args.target in marbler_jax.registered():
+        env, policy = marbler_jax.make(args.target, **parse_overrides(args.set)), None
+        what = "random actions"
+    else:
+        raise ValueError(f"{args.target!r} is neither a run folder (no config.json) nor a scenario; scenarios: "
+                         f"{sorted(marbler_jax.registered())}")
+    frames = episode_frames(env, policy, jax.random.PRNGKey(args.seed), args.envs, progress=not args.no_progress)
+    save_movie(frames, args.out, fps=args.fps)
+    print(f"{env.name}: {args.envs} episode(s) of {what}, {len(frames)} frames -> {args.out}")
+    return 0
 
 
 def _bench(args) -> int:
@@ -316,6 +340,17 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--episodes", type=int, default=2, help="episodes the bundle runs (start states drawn now)")
     ex.add_argument("--bundle-seed", type=int, default=0, help="seed of the bundle's start states")
     ex.set_defaults(func=_export)
+    rd = sub.add_parser("render", help="GIF/MP4 of a run's greedy policy, or of a scenario with random actions")
+    rd.add_argument("target", help="run folder (greedy policy) or scenario name (random actions)")
+    rd.add_argument("--out", required=True, help="movie file: .gif, or .mp4 with imageio-ffmpeg installed")
+    rd.add_argument("--envs", type=int, default=1, help="episodes side by side in a grid (vmapped envs)")
+    rd.add_argument("--checkpoint", default="final", choices=["best", "final"], help="run parameters to render")
+    rd.add_argument("--seed-index", type=int, default=0, help="which of the run's seeds")
+    rd.add_argument("--seed", type=int, default=0, help="episode randomness")
+    rd.add_argument("--fps", type=float, default=6.0)
+    rd.add_argument("--set", action="append", default=[], help="scenario config override key=value")
+    rd.add_argument("--no-progress", action="store_true")
+    rd.set_defaults(func=_render)
     qs = sub.add_parser("quickstart", help="the main job: train, evaluate, plot and render (a few minutes)")
     qs.add_argument("--out", default="runs/quickstart")
     qs.set_defaults(func=_quickstart)

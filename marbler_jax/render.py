@@ -1,8 +1,11 @@
-"""Headless matplotlib drawing of env states (RGB frames for GIFs, ``render()`` of the adapters).
+"""Headless matplotlib drawing of env states (RGB frames for GIFs/MP4s, ``render()`` of the adapters).
 
 ``render_frame(env, state)`` draws one (unbatched) state: the arena, the waypoint box, each robot
 as a disc with its heading and safety radius, and the scenario's own layers (goals, prey, zones,
 tiles) from ``scenario.render_layers(state)``. Returns ``uint8 [H, W, 3]``.
+``record_episodes`` plays one episode in each of several vmapped envs (a policy or random
+actions) and ``render_grid_episode`` tiles their frames into one movie; ``save_movie`` writes a GIF
+(imageio) or an MP4 (imageio-ffmpeg, when installed).
 """
 from __future__ import annotations
 
@@ -57,26 +60,110 @@ def render_frame(env, state, *, step: int | None = None, reward: float | None = 
     return image
 
 
-def render_episode(env, policy, key, max_steps: int | None = None) -> list[np.ndarray]:
-    """Frames of one episode (reset frame + one per step, stopping at ``done``).
+def episode_frames(env, policy, key, num_envs: int = 1, progress: bool = False) -> list[np.ndarray]:
+    """Frames of one episode per env (tiled when ``num_envs > 1``); see :func:`record_episodes`."""
+    return render_grid_episode(env, record_episodes(env, policy, key, num_envs)[0], progress=progress)
 
-    ``policy(key, obs [N, obs_dim]) -> actions [N]``; ``None`` means uniform random actions.
+
+def record_episodes(env, policy, key, num_envs: int = 1):
+    """One episode in each of ``num_envs`` vmapped envs, for rendering.
+
+    ``policy``: ``None`` (uniform random), ``(key, obs [K, N, D]) -> actions [K, N]`` or a
+    :class:`marbler_jax.rollout.StatefulPolicy`. Envs that finish keep their final state.
+
+    Returns ``(states, returns [T + 1, K], lengths [K])``: ``states`` is the env state pytree
+    stacked as ``[T + 1, K, ...]`` (entry 0 the reset state), ``T = env.max_steps``, and
+    ``lengths`` the steps each episode took.
     """
     import jax
+    import jax.numpy as jnp
 
-    step = jax.jit(env.step_env)
-    act = jax.jit(policy) if policy is not None else jax.jit(
-        lambda k, obs: jax.random.randint(k, (env.num_agents,), 0, env.num_actions))
-    key, k_reset = jax.random.split(key)
-    obs, state = env.reset(k_reset)
-    frames = [render_frame(env, jax.device_get(state), step=0, reward=0.0)]
-    for t in range(max_steps or env.max_steps):
-        key, k_act, k_step = jax.random.split(key, 3)
-        obs, state, rewards, done, info = step(k_step, state, act(k_act, obs))
-        frames.append(render_frame(env, jax.device_get(state), step=t + 1, reward=float(info["episode_return"])))
-        if bool(done):
-            break
+    from marbler_jax.rollout import StatefulPolicy, random_actions
+
+    stateful = isinstance(policy, StatefulPolicy)
+
+    def run(key):
+        key_reset, key_run = jax.random.split(key)
+        obs, state = jax.vmap(env.reset)(jax.random.split(key_reset, num_envs))
+        memory = policy.initial_carry((num_envs,)) if stateful else ()
+
+        def body(carry, key_t):
+            obs, state, memory, done, first = carry
+            key_act, key_step = jax.random.split(key_t)
+            if policy is None:
+                actions = random_actions(env, key_act, (num_envs,))
+            elif stateful:
+                actions, memory = policy.step(key_act, obs, memory, jnp.full((num_envs,), first))
+            else:
+                actions = policy(key_act, obs)
+            new_obs, new_state, _, new_done, _ = jax.vmap(env.step_env)(
+                jax.random.split(key_step, num_envs), state, actions)
+            keep = lambda old, new: jnp.where(done.reshape(done.shape + (1,) * (new.ndim - 1)), old, new)
+            state = jax.tree_util.tree_map(keep, state, new_state)
+            obs = keep(obs, new_obs)
+            return (obs, state, memory, done | new_done, False), state
+
+        start = (obs, state, memory, jnp.zeros((num_envs,), bool), True)
+        _, states = jax.lax.scan(body, start, jax.random.split(key_run, env.max_steps))
+        return jax.tree_util.tree_map(lambda first, rest: jnp.concatenate([first[None], rest]), state, states)
+
+    states = jax.device_get(jax.jit(run)(key))
+    returns = np.asarray(states.episode_return)
+    steps = np.asarray(states.step)
+    return states, returns, steps.max(axis=0)
+
+
+def render_grid_episode(env, states, *, columns: int | None = None, dpi: int | None = None,
+                        progress: bool = False) -> list[np.ndarray]:
+    """Frames ``[H, W, 3]`` tiling the envs of :func:`record_episodes` states (``[T + 1, K, ...]``) in
+    a grid, one frame per step until the longest episode ended (finished envs hold their last frame)."""
+    import jax
+
+    steps = np.asarray(states.step)                                   # [T + 1, K]
+    count = steps.shape[1]
+    length = int(steps.max())
+    dpi = dpi or (80 if count == 1 else 60)
+    columns = columns or int(np.ceil(np.sqrt(count)))
+    rows = int(np.ceil(count / columns))
+    frames = []
+    times = range(length + 1)
+    if progress:
+        from tqdm.auto import tqdm
+
+        times = tqdm(times, desc="render", unit="frame")
+    for t in times:
+        tiles = []
+        for k in range(count):
+            one = jax.tree_util.tree_map(lambda x: x[t, k], states)
+            tiles.append(render_frame(env, one, step=int(steps[t, k]), reward=float(one.episode_return), dpi=dpi))
+        blank = np.full_like(tiles[0], 255)
+        tiles += [blank] * (rows * columns - count)
+        grid = [np.concatenate(tiles[r * columns:(r + 1) * columns], axis=1) for r in range(rows)]
+        frames.append(np.concatenate(grid, axis=0))
     return frames
+
+
+def save_movie(frames, path, fps: float = 6.0) -> None:
+    """Write ``frames`` to ``path``: ``.gif`` (imageio) or ``.mp4`` (needs ``imageio-ffmpeg``)."""
+    from pathlib import Path
+
+    import imageio.v2 as imageio
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".gif", ".mp4"):
+        raise ValueError(f"movie file must end in .gif or .mp4, got {path.name!r}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if suffix == ".gif":
+        imageio.mimsave(path, np.stack(frames), duration=1.0 / fps, loop=0)
+        return
+    try:
+        import imageio_ffmpeg  # noqa: F401
+    except ImportError:
+        raise ValueError("writing .mp4 needs the imageio-ffmpeg package (pip install imageio-ffmpeg); "
+                         "or write a .gif") from None
+    even = [f[: f.shape[0] // 2 * 2, : f.shape[1] // 2 * 2] for f in frames]   # H.264 wants even sizes
+    imageio.mimsave(path, even, fps=fps, macro_block_size=1)
 
 
 def _draw_layer(ax, plt, layer: dict) -> None:

@@ -78,3 +78,12 @@ def test_train_vdn_then_evaluate_best_checkpoint(tmp_path, capsys):
     assert "33.25 ± 0.46" in capsys.readouterr().out
     assert main(["evaluate", str(tmp_path / "missing")]) == 2
     assert "is not a run folder" in capsys.readouterr().err
+    # the recurrent greedy policy of the best checkpoint, two episodes side by side
+    gif = tmp_path / "vdn.gif"
+    assert main(["render", str(out), "--out", str(gif), "--checkpoint", "best", "--envs", "2", "--no-progress"]) == 0
+    import imageio.v2 as imageio
+
+    frames = imageio.mimread(gif)
+    assert 2 <= len(frames) <= 82 and frames[0].shape[1] > 1.5 * frames[0].shape[0]
+    assert main(["render", str(out), "--out", str(gif), "--seed-index", "5", "--no-progress"]) == 2
+    assert "out of range" in capsys.readouterr().err

@@ -1,0 +1,53 @@
+"""Rendering: vmapped episodes recorded and tiled into GIF frames; the ``render`` CLI for scenarios."""
+from __future__ import annotations
+
+import imageio.v2 as imageio
+import jax
+import numpy as np
+import pytest
+
+import marbler_jax
+from marbler_jax.cli import main
+from marbler_jax.render import record_episodes, render_frame, render_grid_episode
+
+
+def test_recorded_episodes_freeze_when_done_and_tile_into_a_grid():
+    env = marbler_jax.make("predator_capture_prey", max_episode_steps=6, control_period=15)
+    states, returns, lengths = record_episodes(env, None, jax.random.PRNGKey(0), num_envs=3)
+    steps = np.asarray(states.step)
+    assert steps.shape == (env.max_steps + 1, 3) and returns.shape == steps.shape
+    assert np.all(np.diff(steps, axis=0) >= 0) and np.all(steps[-1] == lengths) and np.all(lengths >= 1)
+    for k in range(3):   # after its last step an env's state no longer changes
+        after = slice(int(lengths[k]), None)
+        assert np.all(np.asarray(states.poses)[after, k] == np.asarray(states.poses)[int(lengths[k]), k])
+    frames = render_grid_episode(env, states)
+    assert len(frames) == int(lengths.max()) + 1
+    tile = render_frame(env, jax.tree_util.tree_map(lambda x: x[0, 0], states), dpi=60)
+    assert frames[0].shape == (2 * tile.shape[0], 2 * tile.shape[1], 3)        # 3 envs -> 2 x 2 grid
+    h, w = tile.shape[:2]
+    first, second, empty = frames[0][:h, :w], frames[0][:h, w:], frames[0][h:, w:]
+    assert first.std() > 20 and not np.array_equal(first, second)              # drawn, and different envs
+    assert np.all(empty == 255)                                                # the unused cell stays blank
+    assert not np.array_equal(frames[0], frames[-1])                           # robots moved
+
+
+def test_render_cli_writes_a_gif_of_a_scenario_grid(tmp_path, capsys):
+    gif = tmp_path / "warehouse.gif"
+    assert main(["render", "warehouse", "--out", str(gif), "--envs", "2", "--no-progress",
+                 "--set", "max_episode_steps=4"]) == 0
+    frames = imageio.mimread(gif)
+    assert 2 <= len(frames) <= 6 and frames[0].shape[1] > frames[0].shape[0]
+    assert f"-> {gif}" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["render", "no_such_scenario", "--out", "x.gif"], "neither a run folder"),
+    (["render", "warehouse", "--out", "x.avi"], ".gif or .mp4"),
+    (["render", "warehouse", "--out", "x.gif", "--envs", "0"], "--envs"),
+])
+def test_render_cli_rejects_bad_input(argv, message, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    if argv[-1] != "0":
+        argv = argv + ["--set", "max_episode_steps=1"] if argv[1] == "warehouse" else argv
+    assert main(argv + ["--no-progress"]) == 2
+    assert message in capsys.readouterr().err
