@@ -115,6 +115,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     log(f"training {algo} on {scenario}: {num_updates} updates x {steps_per_update} env steps, "
         f"{seeds} seed(s) in one program, checkpoint every {chunk} updates")
     t_start = time.perf_counter()
+    board = tensorboard_writer(out)
     bar = tqdm(total=num_updates, initial=done, unit="update", disable=not progress, dynamic_ncols=True)
     while done < num_updates:
         n = min(chunk, num_updates - done)
@@ -136,6 +137,13 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
                 collision_rate=_nan_stat(np.nanmean, metrics["collision_rate"][:, i]),
                 out_of_bounds_rate=_nan_stat(np.nanmean, metrics["out_of_bounds_rate"][:, i]),
                 sps=seeds * n * steps_per_update / chunk_s)))
+        if board is not None:
+            for line in lines[-n:]:
+                row = json.loads(line)
+                for name, value in row.items():
+                    if name not in ("update", "env_steps") and value is not None:
+                        board.add_scalar(f"train/{name}", value, row["env_steps"])
+            board.flush()
         done += n
         manager.save(done, args=ocp.args.StandardSave(runner))
         manager.wait_until_finished()
@@ -152,6 +160,8 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         if on_chunk is not None:
             on_chunk(done)
     bar.close()
+    if board is not None:
+        board.close()
     seconds = time.perf_counter() - t_start
     params = runner["params"]
     save_params(out / "params.npz", params)
@@ -193,6 +203,16 @@ def load_params(path: Path) -> dict:
                 node = node.setdefault(p, {})
             node[leaf] = flat[name]
     return params
+
+
+def tensorboard_writer(out: Path):
+    """A ``tensorboardX.SummaryWriter`` on ``out/tensorboard`` when tensorboardX is installed, else None
+    (``pip install "marbler-jax[tensorboard]"``; view with ``tensorboard --logdir runs``)."""
+    try:
+        from tensorboardX import SummaryWriter
+    except ImportError:
+        return None
+    return SummaryWriter(str(Path(out) / "tensorboard"))
 
 
 def load_run(run: Path, seed_index: int = 0, checkpoint: str = "final"):

@@ -21,6 +21,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tqdm.auto import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from marbler_jax import cbf, physics  # noqa: E402
@@ -49,6 +50,7 @@ def problem(n, batch, seed=0):
 
 def bench_cbf(kinds, ns, batches, min_time):
     rows = []
+    bar = tqdm(total=len(kinds) * len(ns) * len(batches), desc="barrier benchmarks", unit="config")
     for kind in kinds:
         barrier = cbf.make_barrier(kind, **({"safety_radius": 0.2} if kind == "si2" else {}))
         for n in ns:
@@ -60,8 +62,10 @@ def bench_cbf(kinds, ns, batches, min_time):
                 sec, compile_s = timed(fn, u, x, min_time=min_time)
                 rows.append(dict(kind=kind, n=n, batch=batch, sweeps=barrier.sweeps(n),
                                  team_solves_per_s=batch / sec, compile_s=compile_s))
-                print(f"cbf {kind:12s} N={n:2d} batch={batch:5d} sweeps={barrier.sweeps(n):3d} "
-                      f"{batch / sec:14,.0f} team-solves/s", flush=True)
+                bar.update()
+                tqdm.write(f"cbf {kind:12s} N={n:2d} batch={batch:5d} sweeps={barrier.sweeps(n):3d} "
+                           f"{batch / sec:14,.0f} team-solves/s")
+    bar.close()
     return rows
 
 

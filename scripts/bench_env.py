@@ -19,6 +19,7 @@ from datetime import date
 from pathlib import Path
 
 import jax
+from tqdm.auto import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import marbler_jax  # noqa: E402
@@ -50,7 +51,9 @@ def main(argv=None):
     if args.quick:
         settings = settings[:1]
     rows = []
-    for name in args.scenarios.split(","):
+    names = args.scenarios.split(",")
+    bar = tqdm(total=len(names) * len(settings) * len(batches), desc="env benchmarks", unit="config")
+    for name in names:
         for barrier, period in settings:
             env = marbler_jax.make(name, barrier_certificate=barrier, control_period=period)
             for batch in batches:
@@ -59,8 +62,10 @@ def main(argv=None):
                 rows.append(dict(scenario=name, barrier=barrier, control_period=period, batch=batch,
                                  agents=env.num_agents, env_steps_per_s=sps, agent_steps_per_s=sps * env.num_agents,
                                  compile_s=compile_s))
-                print(f"{name:22s} cbf={barrier:4s} period={period:2d} batch={batch:5d} "
-                      f"{sps:12,.0f} env-steps/s (compile {compile_s:.1f} s)", flush=True)
+                bar.update()
+                tqdm.write(f"{name:22s} cbf={barrier:4s} period={period:2d} batch={batch:5d} "
+                           f"{sps:12,.0f} env-steps/s (compile {compile_s:.1f} s)")
+    bar.close()
     scaling = []
     for n in ([4] if args.quick else [4, 20]):
         env = marbler_jax.make("warehouse", n_agents=n, start_dist=0.3, control_period=15)

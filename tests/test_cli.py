@@ -46,6 +46,8 @@ def test_train_writes_a_complete_run_folder(tmp_path):
     for name in ("config.json", "metrics.jsonl", "learning_curve.png", "params.npz", "evaluation.json"):
         assert (out / name).exists(), name
     assert not list(out.glob("*.tmp*"))  # atomic writes leave no temporaries
+    events = list((out / "tensorboard").glob("events.out.tfevents.*"))   # tensorboardX is in the test extra
+    assert events and b"train/return_mean" in events[0].read_bytes() and b"train/sps" in events[0].read_bytes()
     config = json.loads((out / "config.json").read_text())
     assert config["algo"] == "ippo" and config["algorithm"]["total_timesteps"] == 2048
     lines = (out / "metrics.jsonl").read_text().splitlines()
