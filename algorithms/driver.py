@@ -19,6 +19,7 @@ import jax
 import numpy as np
 
 import marbler_jax
+from marbler_jax.registry import canonical_name
 from algorithms import ippo, mappo, qmix, vdn
 from marbler_jax.rollout import episode_stats, make_rollout
 
@@ -71,6 +72,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     import orbax.checkpoint as ocp
     from tqdm.auto import tqdm
 
+    scenario = canonical_name(scenario)
     env = marbler_jax.make(scenario, **(env_overrides or {}))
     cfg = build_config(algo, dict(hp or {}, total_timesteps=int(total_steps)))
     if seeds < 1:

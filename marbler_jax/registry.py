@@ -1,6 +1,11 @@
 """``make(name, **overrides)`` and ``registered()``: build envs by scenario name."""
 from __future__ import annotations
 
+import importlib
+import importlib.util
+import sys
+from pathlib import Path
+
 from marbler_jax.env import MarblerEnv
 from marbler_jax.scenarios import SCENARIOS
 from marbler_jax.scenarios.base import Scenario, build_config
@@ -21,10 +26,47 @@ def registered() -> list[str]:
 
 
 def scenario_class(name: str) -> type[Scenario]:
+    """The scenario class for a registered name, a MARBLER alias, or ``"module:Class"`` /
+    ``"path/to/file.py:Class"`` (a custom scenario, imported and registered on first use)."""
+    if ":" in name:
+        return _import_scenario(name)
     key = ALIASES.get(name, name)
     if key not in SCENARIOS:
-        raise ValueError(f"unknown scenario {name!r}; registered scenarios: {registered()}")
+        raise ValueError(f"unknown scenario {name!r}; registered scenarios: {registered()} "
+                         "(or 'module:Class' / 'file.py:Class' for a custom scenario)")
     return SCENARIOS[key]
+
+
+def canonical_name(name: str) -> str:
+    """``name`` with a custom scenario's ``file.py`` made absolute (what run folders store)."""
+    if ":" in name:
+        where, cls = name.rsplit(":", 1)
+        if where.endswith(".py"):
+            return f"{Path(where).resolve()}:{cls}"
+    return name
+
+
+def _import_scenario(spec: str) -> type[Scenario]:
+    where, cls_name = spec.rsplit(":", 1)
+    if where.endswith(".py"):
+        path = Path(where).resolve()
+        if not path.exists():
+            raise ValueError(f"scenario file {where!r} does not exist")
+        module = sys.modules.get(path.stem)
+        if module is None or Path(getattr(module, "__file__", "")).resolve() != path:
+            loader = importlib.util.spec_from_file_location(path.stem, path)
+            module = importlib.util.module_from_spec(loader)
+            sys.modules[path.stem] = module
+            loader.loader.exec_module(module)
+    else:
+        try:
+            module = importlib.import_module(where)
+        except ImportError as err:
+            raise ValueError(f"cannot import scenario module {where!r}: {err}") from None
+    cls = getattr(module, cls_name, None)
+    if not (isinstance(cls, type) and issubclass(cls, Scenario)):
+        raise ValueError(f"{spec!r}: {cls_name!r} is not a Scenario subclass in {where}")
+    return register(cls)
 
 
 def make(name: str, **overrides) -> MarblerEnv:

@@ -44,7 +44,11 @@ CORE_MODULES = {
 def module_path(module: str) -> Path:
     """Source file of module ``module`` (a package module or, e.g., a user's scenario module)."""
     import importlib.util
+    import sys
 
+    loaded = getattr(sys.modules.get(module), "__file__", None)
+    if loaded and loaded.endswith(".py"):
+        return Path(loaded)
     spec = importlib.util.find_spec(module)
     if spec is None or not spec.origin or not spec.origin.endswith(".py"):
         raise ValueError(f"cannot find the Python source of module {module!r}")
