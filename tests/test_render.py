@@ -40,6 +40,14 @@ def test_render_cli_writes_a_gif_of_a_scenario_grid(tmp_path, capsys):
     assert f"-> {gif}" in capsys.readouterr().out
 
 
+def test_render_cli_writes_an_mp4(tmp_path):
+    mp4 = tmp_path / "pcp.mp4"                                     # imageio-ffmpeg is in the test extra
+    assert main(["render", "predator_capture_prey", "--out", str(mp4), "--no-progress",
+                 "--set", "max_episode_steps=5", "--set", "penalize_violations=false"]) == 0
+    frames = imageio.mimread(mp4, format="FFMPEG")
+    assert len(frames) == 7 and frames[0].std() > 20
+
+
 @pytest.mark.parametrize("argv, message", [
     (["render", "no_such_scenario", "--out", "x.gif"], "neither a run folder"),
     (["render", "warehouse", "--out", "x.avi"], ".gif or .mp4"),
