@@ -36,7 +36,11 @@ UNTRAINED = {
     "warehouse": (qmix, qmix.QMIXNSConfig(hidden=16), "qmix_ns", {}),
     "material_transport": (mappo, mappo.MAPPOConfig(hidden=16, shared=False), "mappo", {}),
     "arctic_transport": (qmix, qmix.QMIXConfig(hidden=16, recurrent=False), "qmix", {}),
+    "discovery": (vdn, vdn.VDNConfig(hidden=16, recurrent=False), "vdn", {"max_episode_steps": 30}),
+    "foraging": (ippo, ippo.IPPOConfig(hidden=16), "ippo", {"max_episode_steps": 30}),
+    "rware": (qmix, qmix.QMIXConfig(hidden=16), "qmix", {"max_episode_steps": 30}),
 }
+HEADING_OBS = {"discovery", "foraging", "rware"}
 
 
 @pytest.fixture(scope="module")
@@ -138,9 +142,12 @@ def test_bundles_run_in_the_real_rps_simulator_like_the_env(bundles, tmp_path):
         else:                              # untrained policies may violate: the bundle saw what rps saw
             assert ("outside the boundaries" not in stdout) or "out_of_bounds=True" in stdout, stdout
             assert ("collided" not in stdout) or "collisions=True" in stdout, stdout
-        # float32 (training precision): every step from the logged pose agrees to float32 rounding
+        # float32 (training precision): every step from the logged pose agrees to float32 rounding. (Greedy
+        # actions are compared in float64 below: JaxRobotarium's scenarios observe raw headings, which a
+        # float32 rounding can flip from +pi to -pi.)
         for result in replay_trace(folder, trace):
-            assert result["env_done"] and result["actions_agree"], (name, result)
+            assert result["env_done"], (name, result)
+            assert result["actions_agree"] or name in HEADING_OBS, (name, result)
             assert result["max_step_deviation"] <= 1e-5, (name, result)
             assert result["max_reward_deviation"] <= 1e-4, (name, result)
             report[(name, result["episode"])] = result["max_pose_deviation"]

@@ -19,12 +19,14 @@ def env(request):
 
 def test_registry_and_sizes():
     assert NAMES == sorted(["simple_navigation", "predator_capture_prey", "warehouse", "material_transport",
-                            "arctic_transport"])
+                            "arctic_transport", "discovery", "foraging", "rware"])
     sizes = {n: (marbler_jax.make(n).num_agents, marbler_jax.make(n).obs_dim, marbler_jax.make(n).num_actions)
              for n in NAMES}
     # MARBLER's layouts: Simple 2(N+1); PCP 4 x 4; Warehouse 3 x 6; MT 9 (N = 4); AT 30
     assert sizes == {"simple_navigation": (4, 10, 5), "predator_capture_prey": (4, 16, 5), "warehouse": (6, 18, 5),
-                     "material_transport": (4, 9, 20), "arctic_transport": (4, 30, 5)}
+                     "material_transport": (4, 9, 20), "arctic_transport": (4, 30, 5),
+                     # JaxRobotarium's layouts: 3N + 3L + 2N; 3N + 3R + N; 3N + 1 + 3C + N
+                     "discovery": (4, 38, 5), "foraging": (3, 18, 5), "rware": (3, 31, 5)}
     assert marbler_jax.make("PredatorCapturePrey").name == "predator_capture_prey"  # MARBLER alias
 
 

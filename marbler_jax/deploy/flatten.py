@@ -22,7 +22,7 @@ from pathlib import Path
 PACKAGE = "marbler_jax"
 PACKAGE_DIR = Path(__file__).resolve().parent.parent
 JAX_MODULES = ("jax", "jaxlib", "flax", "optax", "orbax")
-JAX_ONLY = frozenset({"reset", "grid_positions", "distinct_indices", "spawn_band"})
+JAX_ONLY = frozenset({"reset", "grid_positions", "distinct_indices", "spawn_band", "sample_grid_points"})
 ALLOWED_EXTENSIONS = frozenset({".py", ".npy", ".mat", ".tiff", ".png", ".jpg", ".jpeg", ".gif", ".bmp", ".m",
                                 ".mexa64"})
 _IMPORT_LINE = re.compile(r"^\s*(import|from)\s+(jax|jaxlib|flax|optax|orbax)\b", re.MULTILINE)

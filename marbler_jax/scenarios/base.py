@@ -329,3 +329,32 @@ def nearest_others(poses, k: int):
     dist = xp.take_along_axis(dist, xp.asarray(others), axis=-1)
     order = xp.argsort(dist, axis=-1)[..., :k]
     return xp.take_along_axis(xp.asarray(others), order, axis=-1)
+
+
+def arange_grid(spacing: float, width: float, height: float) -> np.ndarray:
+    """JaxRobotarium's spawn grid: ``x in arange(-w/2, w/2, s)`` x ``y in arange(-h/2, h/2, s)``: ``[M, 2]``."""
+    xs = np.arange(-width / 2, width / 2, spacing)
+    ys = np.arange(-height / 2, height / 2, spacing)
+    return np.stack(np.meshgrid(xs, ys, indexing="ij"), axis=-1).reshape(-1, 2).astype(np.float32)
+
+
+def sample_grid_points(key, n: int, spacing: float, width: float, height: float):
+    """``n`` distinct points of :func:`arange_grid`, uniformly: ``[n, 2]`` (JAX)."""
+    import jax.numpy as jnp
+
+    grid = arange_grid(spacing, width, height)
+    if n > len(grid):
+        raise ValueError(f"cannot place {n} items on a {len(grid)}-point grid (spacing {spacing}, {width} x {height})")
+    return jnp.asarray(grid)[distinct_indices(key, n, len(grid))]
+
+
+def cyclic_others(n: int) -> np.ndarray:
+    """``[n, n - 1]`` indices of the other agents in cyclic order ``i+1, ..., n-1, 0, ..., i-1``."""
+    return (np.arange(n)[:, None] + 1 + np.arange(n - 1)[None, :]) % n
+
+
+def cyclic_blocks(rows):
+    """Each agent's own row followed by the others' rows in cyclic order: ``[N, k] -> [N, N * k]``."""
+    n = rows.shape[0]
+    order = np.concatenate([np.arange(n)[:, None], cyclic_others(n)], axis=1)
+    return rows[order].reshape(n, -1)
