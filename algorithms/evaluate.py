@@ -49,6 +49,11 @@ PAPER = {
 METRICS = ("reward", "steps", "prey_left", "material_left", "collisions", "out_of_bounds")
 
 
+def scenario_metric_names(env) -> list[str]:
+    """The scenario's own paper metrics (``prey_left``, ``deliveries``, ...), from ``scenario.metrics``."""
+    return list(env.scenario.metrics(env.reset(jax.random.PRNGKey(0))[1].scenario))
+
+
 def first_episodes(env, traj) -> dict[str, np.ndarray]:
     """Per-env metrics of the first episode each env finished in ``traj`` (``[T, E]`` arrays)."""
     _, done, info = traj
@@ -64,9 +69,8 @@ def first_episodes(env, traj) -> dict[str, np.ndarray]:
     steps = np.where(at("violation"), env.max_steps, at("steps"))
     out = {"reward": at("episode_return"), "steps": steps.astype(float),
            "collisions": 100.0 * at("episode_collided"), "out_of_bounds": 100.0 * at("episode_out_of_bounds")}
-    for key in ("prey_left", "material_left"):
-        if key in info:
-            out[key] = at(key).astype(float)
+    for key in scenario_metric_names(env):
+        out[key] = at(key).astype(float)
     return out
 
 
@@ -141,7 +145,8 @@ def markdown_table(result: dict) -> str:
     lines = [f"### {result['algo']} on {result['scenario']} ({result['seeds']} seed(s) x "
              f"{result['episodes_per_seed']} episodes, {result['checkpoint']} checkpoint)", "",
              "| metric | marbler-jax | MARBLER paper (sim) |", "|---|---|---|"]
-    for key in METRICS:
+    extra = [k for k in result["pooled"] if k not in METRICS]            # e.g. deliveries, landmarks_left
+    for key in METRICS[:4] + tuple(extra) + METRICS[4:]:
         if key not in result["pooled"]:
             continue
         ours = result["pooled"][key]
