@@ -179,7 +179,7 @@ class Rware(Scenario):
         return {"deliveries": state.deliveries}
 
     def render_layers(self, state):
-        grid, requests = np.asarray(state.grid), np.asarray(state.requests)
+        grid, requests, payload = np.asarray(state.grid), np.asarray(state.requests), np.asarray(state.payload)
         layers = [{"kind": "rect", "xywh": (self.config.delivery_x, -1.0, 1.6 - self.config.delivery_x, 2.0),
                    "color": "green", "alpha": 0.15}]
         for (x, y), shelf in zip(self.cells(), grid):
@@ -187,5 +187,7 @@ class Rware(Scenario):
                            "color": "tan" if shelf >= 0 else "lightgrey", "alpha": 0.6 if shelf >= 0 else 0.25})
             if shelf >= 0:
                 layers.append({"kind": "text", "xy": (x, y), "text": str(shelf), "size": 8})
-        layers.append({"kind": "text", "xy": (1.35, 0.85), "text": "req " + ",".join(map(str, requests)), "size": 7})
+        carrying = " ".join(f"{i}:{p}" if p >= 0 else f"{i}:-" for i, p in enumerate(payload))
+        layers.append({"kind": "text", "xy": (-0.4, 0.8), "size": 8,
+                       "text": f"requested {','.join(map(str, requests))}   robot:shelf {carrying}"})
         return layers
