@@ -181,3 +181,23 @@ def test_bundle_runs_with_numpy_2_and_jax_blocked(bundles, tmp_path):
     stdout = _run_bundle(sys.executable, bundles["simple_navigation"], tmp_path / "trace", {"MARBLER_JAX_EPISODES": "1"},
                          prelude=prelude)
     assert "episode 1/1" in stdout and "collided" not in stdout
+
+
+def test_end_of_script_call_supports_old_and_new_rps():
+    from marbler_jax.deploy.main import end_of_script
+
+    calls = []
+
+    class Rps2024:
+        def call_at_scripts_end(self):
+            calls.append("call_at_scripts_end")
+
+    class RpsV2:
+        def debug(self):
+            calls.append("debug")
+
+    end_of_script(Rps2024())
+    end_of_script(RpsV2())
+    assert calls == ["call_at_scripts_end", "debug"]
+    with pytest.raises(AttributeError, match="neither"):
+        end_of_script(object())
