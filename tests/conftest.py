@@ -71,3 +71,15 @@ def pytest_terminal_summary(terminalreporter):
     tr.write_line(f"{'file':28s} {'N':>3s} {'cases':>5s} {'match':>6s} {'worst':>9s} {'p99':>9s} {'feasible':>8s}")
     for name, n, cases, match, worst, p99, feas in sorted(_CBF_REPORT):
         tr.write_line(f"{name:28s} {n:3d} {cases:5d} {match:6.1%} {worst:9.2e} {p99:9.2e} {feas:8.1%}")
+
+
+@pytest.fixture(scope="session")
+def ippo_simple_nav_run(tmp_path_factory):
+    """One IPPO run on Simple Navigation (150k steps, default env: safe CBF, control every tick), trained once
+    per session through the training driver; used by the learning test and the Robotarium bundle test."""
+    from algorithms.driver import train
+
+    run = tmp_path_factory.mktemp("ippo-sn") / "run"
+    train("simple_navigation", "ippo", 150_000, 1, run, hp={"num_envs": 64, "num_steps": 64, "lr": 1e-3},
+          eval_episodes=256, progress=False, log=lambda *a, **k: None)
+    return run

@@ -12,8 +12,17 @@ from marbler_jax.rollout import make_rollout
 NAMES = marbler_jax.registered()
 
 
+MARBLER = ["arctic_transport", "material_transport", "predator_capture_prey", "simple_navigation", "warehouse"]
+
+
 @pytest.fixture(scope="module", params=NAMES)
 def env(request):
+    return marbler_jax.make(request.param)
+
+
+@pytest.fixture(scope="module", params=[n if n in MARBLER else pytest.param(n, marks=pytest.mark.slow) for n in NAMES])
+def env_core(request):
+    """MARBLER's scenarios in the default run; the others (the same core code path) under ``-m slow``."""
     return marbler_jax.make(request.param)
 
 
@@ -30,20 +39,22 @@ def test_registry_and_sizes():
     assert marbler_jax.make("PredatorCapturePrey").name == "predator_capture_prey"  # MARBLER alias
 
 
-def test_zero_collisions_and_no_nan_over_2000_random_episodes(env):
-    """Default settings (safe CBF, control every tick): random policies never collide."""
-    num_envs = 2048
+def test_zero_collisions_and_no_nan_over_1000s_of_random_episodes(env):
+    """Default settings (safe CBF, control every tick): random policies never collide (2048 episodes of
+    MARBLER's scenarios, 1024 of the 101-step JaxRobotarium ones)."""
+    num_envs = 1024 if env.name in ("discovery", "foraging", "rware") else 2048
     rollout = make_rollout(env, num_envs, env.max_steps)
     state, (rewards, done, info) = rollout(jax.random.PRNGKey(7))
     episodes = int(done.sum()) + int((~done[-1]).sum())  # finished + the ones still running
-    assert episodes >= 2000
+    assert episodes >= num_envs
     assert int(info["collisions"].sum()) == 0, f"{env.name}: {int(info['collisions'].sum())} collision steps"
     assert bool(jnp.all(jnp.isfinite(rewards))) and bool(jnp.all(jnp.isfinite(state.poses)))
     # boundary violations stay rare (no boundary barrier in MARBLER's certificate)
     assert float(info["out_of_bounds"].sum()) / num_envs < 0.05
 
 
-def test_determinism_jit_and_vmap(env):
+def test_determinism_jit_and_vmap(env_core):
+    env = env_core
     keys = jax.random.split(jax.random.PRNGKey(3), 3)
     obs, state = jax.vmap(env.reset)(keys)
     actions = jax.random.randint(jax.random.PRNGKey(4), (3, env.num_agents), 0, env.num_actions)

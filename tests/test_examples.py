@@ -53,7 +53,7 @@ def test_coverage_is_safe_under_the_certificate_and_trainable():
     _, traj = make_rollout(env, 32, 2 * env.max_steps)(jax.random.PRNGKey(0))
     stats = episode_stats(traj)
     assert stats["episodes"] >= 32 and stats["collision_rate"] == 0.0
-    cfg = ippo.IPPOConfig(total_timesteps=60_000, num_envs=32, num_steps=64, lr=1e-3)
+    cfg = ippo.IPPOConfig(total_timesteps=40_000, num_envs=32, num_steps=64, lr=1e-3)
     params, metrics = jax.jit(ippo.make_train(env, cfg))(jax.random.PRNGKey(0))
     trained = episode_stats(make_rollout(env, 64, env.max_steps, ippo.greedy_policy(env, cfg, params))(
         jax.random.PRNGKey(1))[1])

@@ -18,7 +18,11 @@ TWENTY = {
 }
 
 
-@pytest.mark.parametrize("name", sorted(TWENTY))
+DEFAULT_RUN = {"material_transport", "discovery"}   # the others are marked slow (same code path, ~9 s each)
+
+
+@pytest.mark.parametrize("name", [n if n in DEFAULT_RUN else pytest.param(n, marks=pytest.mark.slow)
+                                  for n in sorted(TWENTY)])
 def test_twenty_robots_run_without_collisions(name):
     env = marbler_jax.make(name, max_episode_steps=8, **TWENTY[name])
     assert env.num_agents == 20
