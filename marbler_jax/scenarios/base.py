@@ -82,6 +82,18 @@ class ScenarioConfig:
             )
 
 
+@dataclasses.dataclass(frozen=True)
+class JaxRobotariumConfig(ScenarioConfig):
+    """Defaults shared by the scenarios ported from JaxRobotarium (Discovery, Foraging, RWARE): its
+    waypoint box x in [-1.5, 1.5], 0.2 m waypoint steps, 101-step episodes, 30 ticks per step."""
+
+    step_dist: float = 0.2
+    LEFT: float = -1.5
+    RIGHT: float = 1.5
+    max_episode_steps: int = 100
+    update_frequency: int = 30
+
+
 def _positive_int(config, *names):
     for name in names:
         value = getattr(config, name)
@@ -336,6 +348,14 @@ def arange_grid(spacing: float, width: float, height: float) -> np.ndarray:
     xs = np.arange(-width / 2, width / 2, spacing)
     ys = np.arange(-height / 2, height / 2, spacing)
     return np.stack(np.meshgrid(xs, ys, indexing="ij"), axis=-1).reshape(-1, 2).astype(np.float32)
+
+
+def check_grid_capacity(name: str, n: int, spacing: float, area, what: str = "robots") -> None:
+    """Raise a clear error when :func:`arange_grid` over ``area = (width, height)`` cannot hold ``n`` items."""
+    capacity = len(arange_grid(spacing, *area))
+    if n > capacity:
+        raise ValueError(f"{name}: cannot place {n} {what} -- the spawn grid (spacing {spacing} m over "
+                         f"{area[0]} x {area[1]} m) holds at most {capacity}")
 
 
 def sample_grid_points(key, n: int, spacing: float, width: float, height: float):

@@ -35,13 +35,14 @@ import jax.numpy as jnp
 from flax import struct
 
 from marbler_jax._xp import namespace
-from marbler_jax.scenarios.base import Scenario, ScenarioConfig, arange_grid, cyclic_blocks, sample_grid_points
+from marbler_jax.scenarios.base import (JaxRobotariumConfig, Scenario, check_grid_capacity, cyclic_blocks,
+                                        sample_grid_points)
 
 UNSEEN = -5.0
 
 
 @dataclasses.dataclass(frozen=True)
-class DiscoveryConfig(ScenarioConfig):
+class DiscoveryConfig(JaxRobotariumConfig):
     n_sensing: int = 2
     n_tagging: int = 2
     num_landmarks: int = 6
@@ -51,15 +52,10 @@ class DiscoveryConfig(ScenarioConfig):
     tag_reward: float = 5.0
     time_penalty: float = -0.05
     terminate_on_success: bool = False
-    step_dist: float = 0.2
     agent_spacing: float = 0.3
     agent_area: tuple[float, float] = (0.8333, 1.5)
     landmark_spacing: float = 0.5
     landmark_area: tuple[float, float] = (2.5, 1.5)
-    LEFT: float = -1.5
-    RIGHT: float = 1.5
-    max_episode_steps: int = 100
-    update_frequency: int = 30
 
     def validate(self) -> None:
         super().validate()
@@ -70,15 +66,8 @@ class DiscoveryConfig(ScenarioConfig):
             raise ValueError(f"num_landmarks must be >= 1, got {self.num_landmarks}")
         if self.sensing_radius <= 0 or self.tagging_radius <= 0:
             raise ValueError("sensing_radius and tagging_radius must be > 0")
-        _check_grid("robots", self.n_sensing + self.n_tagging, self.agent_spacing, self.agent_area)
-        _check_grid("landmarks", self.num_landmarks, self.landmark_spacing, self.landmark_area)
-
-
-def _check_grid(what: str, n: int, spacing: float, area) -> None:
-    capacity = len(arange_grid(spacing, *area))
-    if n > capacity:
-        raise ValueError(f"discovery: cannot place {n} {what} -- the spawn grid (spacing {spacing} m over "
-                         f"{area[0]} x {area[1]} m) holds at most {capacity}")
+        check_grid_capacity("discovery", self.n_sensing + self.n_tagging, self.agent_spacing, self.agent_area)
+        check_grid_capacity("discovery", self.num_landmarks, self.landmark_spacing, self.landmark_area, "landmarks")
 
 
 @struct.dataclass

@@ -30,24 +30,20 @@ import jax.numpy as jnp
 from flax import struct
 
 from marbler_jax._xp import namespace
-from marbler_jax.scenarios.base import Scenario, ScenarioConfig, arange_grid, cyclic_blocks, sample_grid_points
+from marbler_jax.scenarios.base import (JaxRobotariumConfig, Scenario, check_grid_capacity, cyclic_blocks,
+                                        sample_grid_points)
 
 
 @dataclasses.dataclass(frozen=True)
-class ForagingConfig(ScenarioConfig):
+class ForagingConfig(JaxRobotariumConfig):
     levels: tuple[float, ...] = (1.0, 2.0, 3.0)
     num_resources: int = 2
     forage_radius: float = 0.3
     forage_reward: float = 1.0
     time_penalty: float = -0.01
     terminate_on_success: bool = False
-    step_dist: float = 0.2
     spawn_spacing: float = 0.3
     spawn_area: tuple[float, float] = (2.5, 1.5)
-    LEFT: float = -1.5
-    RIGHT: float = 1.5
-    max_episode_steps: int = 100
-    update_frequency: int = 30
 
     def validate(self) -> None:
         super().validate()
@@ -58,11 +54,8 @@ class ForagingConfig(ScenarioConfig):
             raise ValueError(f"num_resources must be in [1, {n}] (one per robot at most), got {self.num_resources}")
         if self.forage_radius <= 0:
             raise ValueError(f"forage_radius must be > 0, got {self.forage_radius}")
-        capacity = len(arange_grid(self.spawn_spacing, *self.spawn_area))
-        if n + self.num_resources > capacity:
-            raise ValueError(f"foraging: cannot place {n} robots and {self.num_resources} resources -- the spawn grid "
-                             f"(spacing {self.spawn_spacing} m over {self.spawn_area[0]} x {self.spawn_area[1]} m) "
-                             f"holds at most {capacity}")
+        check_grid_capacity("foraging", n + self.num_resources, self.spawn_spacing, self.spawn_area,
+                            "robots and resources")
 
 
 @struct.dataclass

@@ -42,23 +42,19 @@ import numpy as np
 from flax import struct
 
 from marbler_jax._xp import namespace
-from marbler_jax.scenarios.base import Scenario, ScenarioConfig, cyclic_blocks, distinct_indices
+from marbler_jax.scenarios.base import JaxRobotariumConfig, Scenario, cyclic_blocks, distinct_indices
 
 BLOCK_HALF = 0.125   # half side of a cell's blocking box [m]
 MOVE_SAMPLES = (0.2, 0.4, 0.6, 0.8, 1.0)
 
 
 @dataclasses.dataclass(frozen=True)
-class RwareConfig(ScenarioConfig):
+class RwareConfig(JaxRobotariumConfig):
     n_agents: int = 3
     num_cells: int = 6
     pickup_radius: float = 0.2
     delivery_x: float = 1.1
     deliver_reward: float = 1.0
-    step_dist: float = 0.2
-    LEFT: float = -1.5
-    RIGHT: float = 1.5
-    max_episode_steps: int = 100
     update_frequency: int = 60
 
     def validate(self) -> None:
