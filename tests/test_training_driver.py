@@ -58,3 +58,10 @@ def test_interrupted_run_resumes_bit_exactly(tmp_path):
     np.testing.assert_array_equal(loaded["params"]["actor"]["Dense_0"]["kernel"], kernel)
     env, policy = load_run(tmp_path / "full")
     assert env.name == "warehouse" and policy(None, np.zeros((env.num_agents, env.obs_dim), np.float32)).shape == (env.num_agents,)
+
+
+def test_eigen_thread_pool_is_off_by_default():
+    """The jaxlib 0.10.2 CPU deadlock workaround (see marbler_jax/__init__.py) is in force for every import."""
+    import os
+
+    assert "--xla_cpu_multi_thread_eigen=false" in os.environ.get("XLA_FLAGS", "")
