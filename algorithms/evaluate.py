@@ -49,11 +49,6 @@ PAPER = {
 METRICS = ("reward", "steps", "prey_left", "material_left", "collisions", "out_of_bounds")
 
 
-def scenario_metric_names(env) -> list[str]:
-    """The scenario's own paper metrics (``prey_left``, ``deliveries``, ...), from ``scenario.metrics``."""
-    return list(env.scenario.metrics(env.reset(jax.random.PRNGKey(0))[1].scenario))
-
-
 def first_episodes(env, traj) -> dict[str, np.ndarray]:
     """Per-env metrics of the first episode each env finished in ``traj`` (``[T, E]`` arrays)."""
     _, done, info = traj
@@ -69,7 +64,7 @@ def first_episodes(env, traj) -> dict[str, np.ndarray]:
     steps = np.where(at("violation"), env.max_steps, at("steps"))
     out = {"reward": at("episode_return"), "steps": steps.astype(float),
            "collisions": 100.0 * at("episode_collided"), "out_of_bounds": 100.0 * at("episode_out_of_bounds")}
-    for key in scenario_metric_names(env):
+    for key in env.metric_names:
         out[key] = at(key).astype(float)
     return out
 

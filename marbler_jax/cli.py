@@ -170,8 +170,10 @@ def _export(args) -> int:
 
     spec = export_policy(args.run, args.out, seed_index=args.seed_index, checkpoint=args.checkpoint,
                          bundle=args.bundle, episodes=args.episodes, bundle_seed=args.bundle_seed)
+    from marbler_jax.deploy.bundle import folder_size
+
     files = sorted(p.name for p in Path(args.out).iterdir())
-    size = sum(p.stat().st_size for p in Path(args.out).iterdir())
+    size = folder_size(args.out)
     print(f"exported {spec['algo']} ({spec['kind']}, {'GRU' if spec['recurrent'] else 'feed-forward'}, "
           f"{'shared' if spec['shared'] else 'per-agent'} parameters) for {spec['scenario']} to {args.out}: "
           f"{len(files)} files, {size / 1024:.1f} KiB")
@@ -183,10 +185,10 @@ def _export(args) -> int:
 
 
 def _print_bundle(folder: Path) -> None:
-    from marbler_jax.deploy.bundle import bundle_size
+    from marbler_jax.deploy.bundle import folder_size
 
     files = sorted(p.name for p in folder.iterdir())
-    print(f"Robotarium bundle: {folder} ({len(files)} flat files, {bundle_size(folder) / 1024:.1f} KiB). Upload every "
+    print(f"Robotarium bundle: {folder} ({len(files)} flat files, {folder_size(folder) / 1024:.1f} KiB). Upload every "
           "file and mark main.py as the main file. Try it first in the simulator: cd into the folder and run "
           "`MARBLER_JAX_HEADLESS=1 python main.py` where `pip install robotarium-python-simulator` is installed.")
 

@@ -26,6 +26,7 @@ transition (``info["returned_episode"]`` is True and the episode metrics are the
 """
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import jax
@@ -90,6 +91,13 @@ class MarblerEnv:
     def max_steps(self) -> int:
         """Steps of a full-length episode (``max_episode_steps + 1``)."""
         return self.config.max_episode_steps + 1
+
+    @functools.cached_property
+    def metric_names(self) -> tuple[str, ...]:
+        """The scenario's paper metrics in ``info`` (``prey_left``, ``deliveries``, ...); found by shape
+        evaluation, without computing a reset."""
+        metrics = jax.eval_shape(lambda key: self.scenario.metrics(self.reset(key)[1].scenario), jax.random.PRNGKey(0))
+        return tuple(metrics)
 
     def __repr__(self) -> str:
         return f"MarblerEnv({self.name!r}, agents={self.num_agents}, obs_dim={self.obs_dim}, actions={self.num_actions})"

@@ -25,7 +25,7 @@ from tqdm.auto import tqdm
 import marbler_jax
 from algorithms import ippo, vdn
 from algorithms.export import export_params
-from marbler_jax.deploy.bundle import bundle_size, write_bundle
+from marbler_jax.deploy.bundle import folder_size, write_bundle
 
 ARCHITECTURES = {
     "vdn-gru128": (vdn, lambda: vdn.VDNConfig(hidden=128), "vdn"),
@@ -48,7 +48,7 @@ def bench(python: str, scenario: str, arch: str, episodes: int, workdir: Path) -
         raise RuntimeError(result.stdout + result.stderr)
     compute = np.concatenate([np.load(trace / f"episode_{k}.npz")["compute_s"] for k in range(episodes)]) * 1e3
     return dict(scenario=scenario, arch=arch, robots=env.num_agents, files=len(list(folder.iterdir())),
-                bundle_kib=bundle_size(folder) / 1024, iterations=int(compute.size),
+                bundle_kib=folder_size(folder) / 1024, iterations=int(compute.size),
                 compute_ms_mean=float(compute.mean()), compute_ms_p99=float(np.percentile(compute, 99)),
                 compute_ms_max=float(compute.max()))
 

@@ -89,9 +89,9 @@ def replace_folder(tmp, out) -> None:
         os.replace(tmp, out)
 
 
-def bundle_size(folder) -> int:
-    """Total bytes of the bundle's files."""
+def folder_size(folder) -> int:
+    """Total bytes of the files in a flat folder (a bundle or a policy export)."""
     return sum(p.stat().st_size for p in Path(folder).iterdir())
 
 
-__all__ = ["write_bundle", "initial_states", "bundle_size", "replace_folder"]
+__all__ = ["write_bundle", "initial_states", "folder_size", "replace_folder"]

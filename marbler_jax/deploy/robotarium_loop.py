@@ -61,6 +61,11 @@ class EpisodeLog:
                     rewards=np.asarray(self.rewards), compute_s=np.asarray(self.compute_s))
 
 
+def _read_poses(robotarium) -> np.ndarray:
+    """``get_poses()`` as a robot-major float64 copy ``[N, 3]`` (rps returns its live ``[3, N]`` array)."""
+    return np.array(robotarium.get_poses(), dtype=np.float64).T
+
+
 def run_episode(robotarium, scenario, policy, scenario_state, barrier=None, params=None) -> EpisodeLog:
     """Run one episode on ``robotarium`` (an ``rps`` ``Robotarium`` created at the initial poses).
 
@@ -80,7 +85,7 @@ def run_episode(robotarium, scenario, policy, scenario_state, barrier=None, para
     n = scenario.num_agents
     ids = np.arange(n)
     log = EpisodeLog()
-    poses = np.array(robotarium.get_poses(), dtype=np.float64).T
+    poses = _read_poses(robotarium)
     started = time.perf_counter()
     state = scenario_state
     obs = np.asarray(scenario.observe(poses, state), dtype=np.float64)
@@ -96,7 +101,7 @@ def run_episode(robotarium, scenario, policy, scenario_state, barrier=None, para
         collided = outside = False
         for tick in range(config.update_frequency):
             if tick > 0:
-                poses = np.array(robotarium.get_poses(), dtype=np.float64).T
+                poses = _read_poses(robotarium)
                 started = time.perf_counter()
             hit = bool(np.any(physics.collisions(params, poses)))
             out = bool(np.any(physics.out_of_bounds(params, poses)))
@@ -108,7 +113,7 @@ def run_episode(robotarium, scenario, policy, scenario_state, barrier=None, para
             robotarium.step()
             if config.penalize_violations and (hit or out):
                 break   # as MARBLER: the violating iteration still runs, then the env step ends
-        poses = np.array(robotarium.get_poses(), dtype=np.float64).T
+        poses = _read_poses(robotarium)
         started = time.perf_counter()   # the next iteration's compute starts here (policy, waypoints)
         state, rewards, done, _, obs, step = finish_step(scenario, poses, state, actions, collided, outside, step)
         done = bool(done)
