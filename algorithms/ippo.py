@@ -4,9 +4,8 @@ With ``critic_input="global"`` the critic sees the global state instead (every a
 concatenated, as MARBLER's EPyMARL runs did): that is MAPPO (:mod:`algorithms.mappo`).
 
 The whole training run is one jitted function ``train(key) -> (params, metrics)`` built by
-:func:`make_train`; ``jax.lax.map(train, keys)`` trains several seeds in one program (``jax.vmap``
-over seeds deadlocks the XLA CPU runtime for some configurations with jaxlib 0.10.2; see
-``algorithms/driver.py``). Each update
+:func:`make_train`; ``jax.vmap(train)(keys)`` trains several seeds in one program (the driver's
+default, see ``algorithms/driver.py``). Each update
 rolls out ``num_steps`` steps of ``num_envs`` auto-resetting envs, computes per-agent GAE, then runs
 ``update_epochs`` epochs of clipped-surrogate SGD over ``num_minibatches`` minibatches (Adam,
 global-norm clipping, linear learning-rate annealing). Agents share parameters (with an agent-ID

@@ -160,7 +160,8 @@ def _train(args) -> int:
     hp.update(parse_overrides(args.hp))
     total = int(float(args.total_steps)) if args.total_steps else steps
     train(args.scenario, args.algo, total, args.seeds, args.out, env_overrides=env_overrides, hp=hp,
-          checkpoint_every=args.checkpoint_every, resume=args.resume, progress=not args.no_progress)
+          checkpoint_every=args.checkpoint_every, resume=args.resume, progress=not args.no_progress,
+          seed_batching=args.seed_batching)
     print(f"run folder: {args.out}")
     return 0
 
@@ -324,6 +325,8 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--checkpoint-every", type=int, default=None, help="updates per chunk/checkpoint (default: 1/10 of the run)")
     tr.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
+    tr.add_argument("--seed-batching", choices=["vmap", "map"], default="vmap",
+                    help="vmap: seeds vectorized in one batch (default); map: one after another in the program")
     tr.set_defaults(func=_train)
     ev = sub.add_parser("evaluate", help="paper-style metrics (MARBLER Table II) of a run's best checkpoint")
     ev.add_argument("run", help="run folder written by `marbler-jax train`")

@@ -60,6 +60,21 @@ def test_interrupted_run_resumes_bit_exactly(tmp_path):
     assert env.name == "warehouse" and policy(None, np.zeros((env.num_agents, env.obs_dim), np.float32)).shape == (env.num_agents,)
 
 
+def test_vmapped_seeds_match_mapped_seeds(tmp_path):
+    """``seed_batching="vmap"`` (default) and ``"map"`` train the same seeds (vmap == loop)."""
+    common = dict(scenario="simple_navigation", algo="ippo", total_steps=STEPS, seeds=2, hp=HP, eval_episodes=8,
+                  progress=False, log=lambda *a: None)
+    train(out=tmp_path / "vmap", **common)
+    train(out=tmp_path / "map", seed_batching="map", **common)
+    vmapped, mapped = np.load(tmp_path / "vmap" / "params.npz"), np.load(tmp_path / "map" / "params.npz")
+    for name in vmapped:
+        assert vmapped[name].shape[0] == 2
+        np.testing.assert_allclose(vmapped[name], mapped[name], rtol=2e-4, atol=1e-6, err_msg=name)
+    assert not np.allclose(vmapped["params/actor/Dense_0/kernel"][0], vmapped["params/actor/Dense_0/kernel"][1])
+    with pytest.raises(ValueError, match=r"seed_batching must be one of \['vmap', 'map'\], got 'pmap'"):
+        train(out=tmp_path / "bad", seed_batching="pmap", **common)
+
+
 def test_eigen_thread_pool_is_off_by_default():
     """The jaxlib 0.10.2 CPU deadlock workaround (see marbler_jax/__init__.py) is in force for every import."""
     import os
