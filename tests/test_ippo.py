@@ -28,9 +28,9 @@ def test_ippo_seeds_in_one_program_and_unshared_parameters():
     env = marbler_jax.make("material_transport")
     cfg = IPPOConfig(total_timesteps=2 * 16 * 8, num_envs=16, num_steps=8, num_minibatches=2, update_epochs=1,
                      hidden=32, shared=False)
-    # seeds in one program via lax.map (see algorithms/driver.py for why not vmap on CPU)
+    # seeds vmapped in one program, as the driver does
     params, metrics = jax.block_until_ready(
-        jax.jit(lambda keys: jax.lax.map(make_train(env, cfg), keys))(jax.random.split(jax.random.PRNGKey(1), 3)))
+        jax.jit(jax.vmap(make_train(env, cfg)))(jax.random.split(jax.random.PRNGKey(1), 3)))
     kernel = params["params"]["actor"]["Dense_0"]["kernel"]
     assert np.all(np.isfinite(np.asarray(kernel)))
     assert kernel.shape == (3, env.num_agents, env.obs_dim, 32)   # [seeds, agents, in, out]
