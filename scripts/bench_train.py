@@ -8,6 +8,7 @@ and prints a Markdown table.
 
     python scripts/bench_train.py --out bench_out/train.json
     python scripts/bench_train.py --algos vdn --presets fast --scenario predator_capture_prey
+    python scripts/bench_train.py --algos vdn qmix --presets fast --seeds 1 5   # seeds vmapped in one program
 """
 from __future__ import annotations
 
@@ -25,15 +26,16 @@ from algorithms.driver import ALGORITHMS, build_config
 from algorithms.presets import preset
 
 
-def bench(scenario: str, algo: str, preset_name: str, updates: int, repeats: int) -> dict:
+def bench(scenario: str, algo: str, preset_name: str, updates: int, repeats: int, seeds: int = 1) -> dict:
     env_overrides, hp, _ = preset(preset_name, scenario, algo)
     if "learning_starts" in ALGORITHMS[algo][0].__dataclass_fields__:
         hp["learning_starts"] = 0
     env = marbler_jax.make(scenario, **env_overrides)
     cfg = build_config(algo, dict(hp, total_timesteps=10**9))
     trainer = ALGORITHMS[algo][1](env, cfg)
-    runner = jax.block_until_ready(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
-    run = jax.jit(lambda r: trainer.run(r, updates))
+    keys = jax.random.split(jax.random.PRNGKey(0), seeds)
+    runner = jax.block_until_ready(jax.jit(jax.vmap(trainer.init))(keys))   # seeds vmapped, as the driver does
+    run = jax.jit(jax.vmap(lambda r: trainer.run(r, updates)))
     t0 = time.perf_counter()
     jax.block_until_ready(run(runner))
     compile_s = time.perf_counter() - t0
@@ -42,8 +44,8 @@ def bench(scenario: str, algo: str, preset_name: str, updates: int, repeats: int
         t0 = time.perf_counter()
         jax.block_until_ready(run(runner))
         best = min(best, time.perf_counter() - t0)
-    steps = updates * trainer.steps_per_update
-    return dict(scenario=scenario, algo=algo, preset=preset_name, env=env_overrides, hp=hp, updates=updates,
+    steps = seeds * updates * trainer.steps_per_update
+    return dict(scenario=scenario, algo=algo, preset=preset_name, seeds=seeds, env=env_overrides, hp=hp, updates=updates,
                 env_steps=steps, seconds=best, compile_seconds=compile_s, env_steps_per_s=steps / best)
 
 
@@ -54,23 +56,24 @@ def main() -> None:
     parser.add_argument("--presets", nargs="+", default=["fast", "paper"])
     parser.add_argument("--updates", type=int, default=5, help="updates per timed chunk")
     parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--seeds", type=int, nargs="+", default=[1], help="seed counts (vmapped in one program)")
     parser.add_argument("--out", default="bench_out/train.json")
     args = parser.parse_args()
     rows = []
-    combos = [(a, p) for a in args.algos for p in args.presets]
-    for algo, name in tqdm(combos, desc="bench_train", unit="config"):
-        rows.append(bench(args.scenario, algo, name, args.updates, args.repeats))
-        tqdm.write(f"{algo} {name}: {rows[-1]['env_steps_per_s']:,.0f} env-steps/s")
+    combos = [(a, p, k) for a in args.algos for p in args.presets for k in args.seeds]
+    for algo, name, seeds in tqdm(combos, desc="bench_train", unit="config"):
+        rows.append(bench(args.scenario, algo, name, args.updates, args.repeats, seeds))
+        tqdm.write(f"{algo} {name} x{seeds} seeds: {rows[-1]['env_steps_per_s']:,.0f} env-steps/s")
     result = dict(machine=platform.processor() or platform.machine(), cpus=jax.device_count(),
                   backend=jax.default_backend(), jax=jax.__version__, rows=rows)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(result, indent=2))
     print(f"\n{args.scenario}, {jax.default_backend()} backend\n")
-    print("| algorithm | preset | env steps / update | env-steps/s incl. learning | compile s |")
-    print("|---|---|---|---|---|")
+    print("| algorithm | preset | seeds | env steps / update (all seeds) | env-steps/s incl. learning | compile s |")
+    print("|---|---|---:|---:|---:|---:|")
     for r in rows:
-        print(f"| {r['algo']} | {r['preset']} | {r['env_steps'] // r['updates']:,} | {r['env_steps_per_s']:,.0f} | "
-              f"{r['compile_seconds']:.1f} |")
+        print(f"| {r['algo']} | {r['preset']} | {r['seeds']} | {r['env_steps'] // r['updates']:,} | "
+              f"{r['env_steps_per_s']:,.0f} | {r['compile_seconds']:.1f} |")
     print(f"\nwritten: {args.out}")
 
 
