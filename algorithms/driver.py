@@ -9,6 +9,7 @@ does the same for checkpoints), so an interrupted run never leaves a half-writte
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
@@ -21,6 +22,7 @@ import numpy as np
 import marbler_jax
 from marbler_jax.registry import canonical_name
 from algorithms import ippo, mappo, qmix, vdn
+from algorithms.hang_guard import HangGuard
 from marbler_jax.rollout import episode_stats, make_rollout
 
 # name -> (config class, make_train(env, cfg), greedy_policy(env, cfg, params))
@@ -64,13 +66,19 @@ SEED_BATCHING = {"vmap": lambda fn, xs: jax.vmap(fn)(xs), "map": jax.lax.map}
 def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Path,
           env_overrides: dict | None = None, hp: dict | None = None, eval_episodes: int = 256,
           checkpoint_every: int | None = None, keep: int = 3, resume: bool = False, seed: int = 0,
-          progress: bool = True, on_chunk=None, log=print, seed_batching: str = "vmap") -> dict:
+          progress: bool = True, on_chunk=None, log=print, seed_batching: str = "vmap",
+          on_hang=None, hang_seconds: float = 120.0) -> dict:
     """Train ``seeds`` seeds in one jitted program, in chunks of ``checkpoint_every`` updates.
 
     ``seed_batching="vmap"`` (default) vectorizes the seeds (``jax.vmap``: one batch of
     ``seeds x num_envs`` envs, the fastest for small per-seed batches); ``"map"`` runs them one after
     another inside the program (``jax.lax.map``: the memory of one seed). Both give every seed the
     same result up to float rounding.
+
+    If the process stays idle for ``hang_seconds`` inside a chunk (the jaxlib CPU hang, see
+    :mod:`algorithms.hang_guard`), ``on_hang(idle_seconds)`` runs on a watcher thread (default: a
+    warning through ``log``; the CLI restarts itself with ``--resume``). ``hang_seconds=0`` turns
+    the watcher off.
 
     After every chunk the runner state (parameters, optimiser, envs, keys) is saved with orbax
     (``checkpoints/``, the last ``keep``; ``best/`` holds the parameters with the best mean return),
@@ -126,6 +134,13 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
                 if json.loads(line)["return_mean"] is not None), default=-np.inf)
     chunk = checkpoint_every or max(1, num_updates // 10)
     run_fns = {}
+    if on_hang is None:
+        def on_hang(idle):
+            log(f"warning: no CPU used for {idle:.0f} s inside a training chunk -- the jaxlib CPU hang "
+                f"(see BENCHMARKS.md); stop this process and rerun with --resume (no checkpoint is lost)")
+
+    def guard():
+        return HangGuard(on_hang, hang_seconds) if hang_seconds else contextlib.nullcontext()
     log(f"training {algo} on {scenario}: {num_updates} updates x {steps_per_update} env steps, "
         f"{seeds} seed(s) in one program, checkpoint every {chunk} updates")
     t_start = time.perf_counter()
@@ -136,7 +151,8 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         if n not in run_fns:
             run_fns[n] = jax.jit(lambda r, n=n: over_seeds(lambda s: trainer.run(s, n), r))
         t0 = time.perf_counter()
-        runner, metrics = jax.block_until_ready(run_fns[n](runner))
+        with guard():
+            runner, metrics = jax.block_until_ready(run_fns[n](runner))
         chunk_s = time.perf_counter() - t0
         metrics = jax.tree_util.tree_map(np.asarray, metrics)
         for i in range(n):

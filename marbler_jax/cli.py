@@ -17,6 +17,7 @@ Subcommands so far:
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -151,6 +152,16 @@ def _list(args) -> int:
     return 0
 
 
+def _restart_resumed(argv, idle: float) -> None:
+    """Replace this hung process by the same ``train`` command with ``--resume`` (bit-exact continuation)."""
+    from algorithms.hang_guard import resume_argv
+
+    print(f"marbler-jax: no CPU used for {idle:.0f} s inside a training chunk (the jaxlib CPU hang, see "
+          "BENCHMARKS.md); restarting from the last checkpoint with --resume", file=sys.stderr, flush=True)
+    sys.stdout.flush()
+    os.execv(sys.executable, [sys.executable, "-m", "marbler_jax", *resume_argv(argv)])
+
+
 def _train(args) -> int:
     from algorithms.driver import train
     from algorithms.presets import preset
@@ -159,9 +170,12 @@ def _train(args) -> int:
     env_overrides.update(parse_overrides(args.set))
     hp.update(parse_overrides(args.hp))
     total = int(float(args.total_steps)) if args.total_steps else steps
+    if args.hang_seconds < 0:
+        raise ValueError(f"--hang-seconds must be >= 0 (0 = off), got {args.hang_seconds}")
     train(args.scenario, args.algo, total, args.seeds, args.out, env_overrides=env_overrides, hp=hp,
           checkpoint_every=args.checkpoint_every, resume=args.resume, progress=not args.no_progress,
-          seed_batching=args.seed_batching)
+          seed_batching=args.seed_batching, hang_seconds=args.hang_seconds,
+          on_hang=lambda idle: _restart_resumed(args.argv, idle))
     print(f"run folder: {args.out}")
     return 0
 
@@ -325,6 +339,9 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--checkpoint-every", type=int, default=None, help="updates per chunk/checkpoint (default: 1/10 of the run)")
     tr.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
+    tr.add_argument("--hang-seconds", type=float, default=120.0,
+                    help="restart with --resume when the process used no CPU for this long inside a "
+                         "training chunk (the jaxlib 0.10.2 CPU hang); 0 = off")
     tr.add_argument("--seed-batching", choices=["vmap", "map"], default="vmap",
                     help="vmap: seeds vectorized in one batch (default); map: one after another in the program")
     tr.set_defaults(func=_train)
@@ -367,7 +384,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
+    args.argv = argv
     try:
         return args.func(args)
     except (ValueError, TypeError) as err:
