@@ -1,12 +1,12 @@
-"""Detect a training call that stopped making progress (the jaxlib 0.10.2 CPU hang).
+"""Detect a training call that stopped making progress, and say so (or restart).
 
-With jaxlib 0.10.2, an XLA CPU program now and then stops inside the runtime: the process goes idle
-and the call never returns (see ``BENCHMARKS.md``; importing marbler_jax turns off Eigen's thread
-pool, which makes it rare but has not removed it). A running XLA program keeps the CPU busy, so a
-call during which the process has used almost no CPU time for ``idle_seconds`` is hung.
-:class:`HangGuard` watches one call from a daemon thread and runs ``on_hang(idle_seconds)`` once
-when that happens; the CLI then restarts itself with ``--resume`` (:func:`resume_argv`), which
-continues bit-exactly from the last checkpoint.
+jaxlib 0.10.2's CPU runtime hung forever when vmapped network inits took batched QR decompositions
+(fixed in :func:`algorithms.networks.orthogonal`; see ``BENCHMARKS.md``). Should another such hang
+appear, a run should not idle for hours: a running XLA program keeps the CPU busy, so a call during
+which the process has used almost no CPU time for ``idle_seconds`` is hung. :class:`HangGuard`
+watches one call from a daemon thread and runs ``on_hang(idle_seconds)`` once when that happens;
+the CLI then restarts itself with ``--resume`` (:func:`resume_argv`), which continues bit-exactly
+from the last checkpoint.
 """
 from __future__ import annotations
 

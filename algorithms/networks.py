@@ -21,6 +21,32 @@ import jax.numpy as jnp
 import numpy as np
 
 
+def orthogonal(scale: float = 1.0):
+    """flax's orthogonal initializer, made safe to ``vmap`` on the CPU (same values).
+
+    Orthogonal draws take a QR decomposition. With jaxlib 0.10.2 the CPU QR (LAPACK ``geqrf`` FFI)
+    splits a *batch* of matrices -- what ``vmap`` over seeds or agents makes of it -- over XLA's
+    intra-op thread pool and waits for the parts on a pool thread; two such calls at once fill a
+    2-thread pool with waiters and the program hangs forever (seen with gdb: both pool threads in
+    ``lapack_sgeqrf_ffi`` -> ``BlockingCounter::Wait``). A custom vmap rule therefore draws a batch
+    one matrix after another (``lax.map``), so no batched QR ever reaches LAPACK.
+    """
+    base = nn.initializers.orthogonal(scale)
+
+    def init(key, shape, dtype=jnp.float32):
+        @jax.custom_batching.custom_vmap
+        def draw(k):
+            return base(k, shape, dtype)
+
+        @draw.def_vmap
+        def _one_at_a_time(axis_size, in_batched, k):
+            return jax.lax.map(draw, k), True
+
+        return draw(key)
+
+    return init
+
+
 class MLP(nn.Module):
     """``features[-1]`` outputs after hidden layers ``features[:-1]`` (orthogonal init)."""
 
@@ -32,8 +58,8 @@ class MLP(nn.Module):
     def __call__(self, x):
         act = {"tanh": nn.tanh, "relu": nn.relu}[self.activation]
         for width in self.features[:-1]:
-            x = act(nn.Dense(width, kernel_init=nn.initializers.orthogonal(np.sqrt(2)))(x))
-        return nn.Dense(self.features[-1], kernel_init=nn.initializers.orthogonal(self.final_scale))(x)
+            x = act(nn.Dense(width, kernel_init=orthogonal(np.sqrt(2)))(x))
+        return nn.Dense(self.features[-1], kernel_init=orthogonal(self.final_scale))(x)
 
 
 class ActorCritic(nn.Module):
@@ -72,7 +98,7 @@ class QAgent(nn.Module):
         x = nn.relu(nn.Dense(self.hidden, name="fc1")(obs))
         if self.recurrent:
             hidden = jnp.where(reset, 0.0, hidden)
-            hidden, x = nn.GRUCell(self.hidden, name="gru")(hidden, x)
+            hidden, x = nn.GRUCell(self.hidden, recurrent_kernel_init=orthogonal(), name="gru")(hidden, x)
         else:
             x = nn.relu(nn.Dense(self.hidden, name="fc_hidden")(x))
         return hidden, nn.Dense(self.num_actions, name="fc2")(x)

@@ -73,10 +73,3 @@ def test_vmapped_seeds_match_mapped_seeds(tmp_path):
     assert not np.allclose(vmapped["params/actor/Dense_0/kernel"][0], vmapped["params/actor/Dense_0/kernel"][1])
     with pytest.raises(ValueError, match=r"seed_batching must be one of \['vmap', 'map'\], got 'pmap'"):
         train(out=tmp_path / "bad", seed_batching="pmap", **common)
-
-
-def test_eigen_thread_pool_is_off_by_default():
-    """The jaxlib 0.10.2 CPU deadlock workaround (see marbler_jax/__init__.py) is in force for every import."""
-    import os
-
-    assert "--xla_cpu_multi_thread_eigen=false" in os.environ.get("XLA_FLAGS", "")

@@ -1,0 +1,49 @@
+"""Network initialisation: the vmap-safe orthogonal initializer (jaxlib 0.10.2 CPU QR hang)."""
+from __future__ import annotations
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import marbler_jax
+from algorithms.driver import ALGORITHMS, build_config
+from algorithms.networks import orthogonal
+
+
+def _qr_operand_shapes(jaxpr, found):
+    """Shapes of every ``qr`` operand in ``jaxpr`` and all its sub-jaxprs (scan, cond, custom_vmap...)."""
+    for eqn in jaxpr.eqns:
+        if eqn.primitive.name == "qr":
+            found.append(tuple(eqn.invars[0].aval.shape))
+        for param in eqn.params.values():
+            for sub in param if isinstance(param, (tuple, list)) else (param,):
+                inner = getattr(sub, "jaxpr", sub)
+                if hasattr(inner, "eqns"):
+                    _qr_operand_shapes(inner, found)
+    return found
+
+
+def test_same_values_as_flax_orthogonal_batched_or_not():
+    keys = jax.random.split(jax.random.PRNGKey(0), 6).reshape(2, 3, -1)
+    ref = np.stack([[np.asarray(nn.initializers.orthogonal(2.0)(k, (8, 5))) for k in row] for row in keys])
+    single = orthogonal(2.0)(keys[0, 0], (8, 5))
+    nested = jax.jit(jax.vmap(jax.vmap(lambda k: orthogonal(2.0)(k, (8, 5)))))(keys)
+    np.testing.assert_array_equal(single, ref[0, 0])
+    np.testing.assert_allclose(nested, ref, rtol=0, atol=1e-6)
+    gram = np.einsum("...ij,...ik->...jk", nested, nested)
+    np.testing.assert_allclose(gram, np.broadcast_to(4 * np.eye(5), gram.shape), atol=1e-5)
+
+
+def test_vmapped_inits_never_hand_lapack_a_batch_of_matrices():
+    """Seeds x agents vmapped inits (IPPO without sharing, QMIX_NS, VDN's GRU) only take 2-D QRs:
+    batched CPU QRs deadlock XLA's 2-thread pool (reproduced 3 of 3 times before the fix)."""
+    env = marbler_jax.make("predator_capture_prey")
+    keys = jax.random.split(jax.random.PRNGKey(0), 3)
+    for algo, hp in [("ippo", dict(shared=False)), ("qmix_ns", {}), ("vdn", {})]:
+        trainer = ALGORITHMS[algo][1](env, build_config(algo, dict(hp, total_timesteps=10**5)))
+        shapes = _qr_operand_shapes(jax.make_jaxpr(jax.vmap(trainer.init))(keys).jaxpr, [])
+        assert shapes, f"{algo}: no QR found -- is the orthogonal initializer still used?"
+        assert all(len(s) == 2 for s in shapes), f"{algo}: batched QR operands {sorted(set(shapes))}"
+    unsafe = jax.make_jaxpr(jax.vmap(lambda k: nn.initializers.orthogonal()(k, (4, 4))))(keys).jaxpr
+    assert _qr_operand_shapes(unsafe, []) == [(3, 4, 4)]   # the walker does see batched QRs
