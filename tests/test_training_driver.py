@@ -9,7 +9,7 @@ import pytest
 
 import marbler_jax
 from tests.helpers import interrupt_at
-from algorithms.driver import load_params, load_run, train
+from algorithms.driver import SEED_BATCHING, load_params, load_run, train
 from algorithms.ippo import IPPOConfig, make_train
 
 HP = dict(num_envs=8, num_steps=8, num_minibatches=2, update_epochs=1, hidden=16)
@@ -61,15 +61,17 @@ def test_interrupted_run_resumes_bit_exactly(tmp_path):
 
 
 def test_vmapped_seeds_match_mapped_seeds(tmp_path):
-    """``seed_batching="vmap"`` (default) and ``"map"`` train the same seeds (vmap == loop)."""
-    common = dict(scenario="simple_navigation", algo="ippo", total_steps=STEPS, seeds=2, hp=HP, eval_episodes=8,
-                  progress=False, log=lambda *a: None)
-    train(out=tmp_path / "vmap", **common)
-    train(out=tmp_path / "map", seed_batching="map", **common)
-    vmapped, mapped = np.load(tmp_path / "vmap" / "params.npz"), np.load(tmp_path / "map" / "params.npz")
-    for name in vmapped:
-        assert vmapped[name].shape[0] == 2
-        np.testing.assert_allclose(vmapped[name], mapped[name], rtol=2e-4, atol=1e-6, err_msg=name)
-    assert not np.allclose(vmapped["params/actor/Dense_0/kernel"][0], vmapped["params/actor/Dense_0/kernel"][1])
+    """The driver's ``seed_batching="vmap"`` (default) and ``"map"`` train the same seeds (vmap == loop)."""
+    env = marbler_jax.make("simple_navigation")
+    trainer = make_train(env, IPPOConfig(total_timesteps=STEPS, **HP))
+    keys = jax.random.split(jax.random.PRNGKey(5), 2)
+    out = {}
+    for name, over_seeds in SEED_BATCHING.items():
+        runner = jax.jit(lambda k: over_seeds(trainer.init, k))(keys)
+        runner, _ = jax.jit(lambda r: over_seeds(lambda s: trainer.run(s, 2), r))(runner)
+        out[name] = runner["params"]
+    jax.tree_util.tree_map(lambda a, b: np.testing.assert_allclose(a, b, rtol=2e-4, atol=1e-6), out["vmap"], out["map"])
+    kernel = out["vmap"]["params"]["actor"]["Dense_0"]["kernel"]
+    assert kernel.shape[0] == 2 and not np.allclose(kernel[0], kernel[1])
     with pytest.raises(ValueError, match=r"seed_batching must be one of \['vmap', 'map'\], got 'pmap'"):
-        train(out=tmp_path / "bad", seed_batching="pmap", **common)
+        train("simple_navigation", "ippo", STEPS, 2, tmp_path / "bad", hp=HP, seed_batching="pmap", progress=False)
