@@ -22,7 +22,7 @@ import numpy as np
 import marbler_jax
 from marbler_jax.registry import canonical_name
 from algorithms import ippo, mappo, qmix, vdn
-from algorithms.hang_guard import HangGuard
+from algorithms.hang_guard import HangGuard, hang_message
 from marbler_jax.rollout import episode_stats, make_rollout
 
 # name -> (config class, make_train(env, cfg), greedy_policy(env, cfg, params))
@@ -136,8 +136,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     run_fns = {}
     if on_hang is None:
         def on_hang(idle):
-            log(f"warning: no CPU used for {idle:.0f} s inside a training chunk -- the jaxlib CPU hang "
-                f"(see BENCHMARKS.md); stop this process and rerun with --resume (no checkpoint is lost)")
+            log(f"warning: {hang_message(idle)}; stop this process and rerun with --resume (no checkpoint is lost)")
 
     def guard():
         return HangGuard(on_hang, hang_seconds) if hang_seconds else contextlib.nullcontext()

@@ -29,7 +29,7 @@ class HangGuard:
     (polled every ``poll_seconds``). ``on_hang`` runs on the watcher thread, at most once per block.
     """
 
-    def __init__(self, on_hang: Callable[[float], None], idle_seconds: float = 300.0,
+    def __init__(self, on_hang: Callable[[float], None], idle_seconds: float = 120.0,
                  poll_seconds: float = 5.0, min_busy: float = 0.5):
         if not idle_seconds > 0 or not poll_seconds > 0:
             raise ValueError(f"idle_seconds and poll_seconds must be > 0, got {idle_seconds}, {poll_seconds}")
@@ -64,9 +64,14 @@ class HangGuard:
             self._thread.join()
 
 
+def hang_message(idle: float) -> str:
+    """What a hung training chunk reports (the CLI and the API's warning add what they do next)."""
+    return f"no CPU used for {idle:.0f} s inside a training chunk (an XLA CPU hang, see BENCHMARKS.md)"
+
+
 def resume_argv(argv: list[str]) -> list[str]:
     """``argv`` of a ``train`` command with ``--resume`` added (once)."""
     return list(argv) if "--resume" in argv else list(argv) + ["--resume"]
 
 
-__all__ = ["HangGuard", "cpu_seconds", "resume_argv"]
+__all__ = ["HangGuard", "cpu_seconds", "hang_message", "resume_argv"]

@@ -154,10 +154,10 @@ def _list(args) -> int:
 
 def _restart_resumed(argv, idle: float) -> None:
     """Replace this hung process by the same ``train`` command with ``--resume`` (bit-exact continuation)."""
-    from algorithms.hang_guard import resume_argv
+    from algorithms.hang_guard import hang_message, resume_argv
 
-    print(f"marbler-jax: no CPU used for {idle:.0f} s inside a training chunk (the jaxlib CPU hang, see "
-          "BENCHMARKS.md); restarting from the last checkpoint with --resume", file=sys.stderr, flush=True)
+    print(f"marbler-jax: {hang_message(idle)}; restarting from the last checkpoint with --resume",
+          file=sys.stderr, flush=True)
     sys.stdout.flush()
     os.execv(sys.executable, [sys.executable, "-m", "marbler_jax", *resume_argv(argv)])
 
