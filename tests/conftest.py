@@ -8,6 +8,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+# Many tests build the same training programs again (a run, then its interrupted twin and the resume;
+# the CLI and the API on the same settings): a persistent compilation cache shared by the xdist workers
+# (and the CLIs they start) compiles each program once per machine. Cached executables are keyed by the
+# program, JAX version and flags, so they never change a result. Set JAX_COMPILATION_CACHE_DIR to move it.
+_CACHE = os.environ.setdefault(
+    "JAX_COMPILATION_CACHE_DIR", str(Path(__file__).resolve().parents[1] / ".pytest_cache" / "jax-compilation"))
+
+import jax  # noqa: E402  (after the cache setting, which jax reads at import)
+
+jax.config.update("jax_compilation_cache_dir", _CACHE)
+
 GOLDEN = Path(os.environ.get("MARBLER_JAX_GOLDEN", Path(__file__).resolve().parents[2] / "shared" / "golden"))
 
 
@@ -76,10 +87,22 @@ def pytest_terminal_summary(terminalreporter):
 @pytest.fixture(scope="session")
 def ippo_simple_nav_run(tmp_path_factory):
     """One IPPO run on Simple Navigation (150k steps, default env: safe CBF, control every tick), trained once
-    per session through the training driver; used by the learning test and the Robotarium bundle test."""
+    per session through the training driver; used by the learning test and the Robotarium bundle test.
+
+    Under pytest-xdist the workers share it: the first to need it trains it under a file lock in the
+    session's common temp folder, the others wait for the lock and reuse the finished run."""
+    import fcntl
+
     from algorithms.driver import train
 
-    run = tmp_path_factory.mktemp("ippo-sn") / "run"
-    train("simple_navigation", "ippo", 150_000, 1, run, hp={"num_envs": 64, "num_steps": 64, "lr": 1e-3},
-          eval_episodes=256, progress=False, log=lambda *a, **k: None)
+    shared = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        shared = shared.parent          # common to every worker of this session
+    run = shared / "ippo-sn" / "run"
+    run.parent.mkdir(exist_ok=True)
+    with open(shared / "ippo-sn.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (run / "evaluation.json").exists():     # written last by the driver
+            train("simple_navigation", "ippo", 150_000, 1, run, hp={"num_envs": 64, "num_steps": 64, "lr": 1e-3},
+                  eval_episodes=256, progress=False, log=lambda *a, **k: None)
     return run
