@@ -67,6 +67,7 @@ class QConfig:
     target_update_interval: int = 200  # gradient steps between hard target copies (tau = 1)
     tau: float = 1.0                 # < 1: Polyak averaging after every gradient step
     double_q: bool = True
+    reward_norm: str = "none"        # none | scale (r / std) | standardise ((r - mean) / std, EPyMARL's)
     hidden: int = 128
     recurrent: bool = True
     shared: bool = True
@@ -77,14 +78,48 @@ class QConfig:
                      "eps_decay_steps", "target_update_interval"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if not 0 <= self.learning_starts < 2**31:
+            raise ValueError(f"learning_starts must be in [0, 2**31) env steps, got {self.learning_starts}")
         if self.num_steps < 0:
             raise ValueError(f"num_steps must be >= 0 (0 = episode length), got {self.num_steps}")
         if self.optimizer not in OPTIMIZERS:
             raise ValueError(f"optimizer must be one of {sorted(OPTIMIZERS)}, got {self.optimizer!r}")
         if not 0.0 < self.tau <= 1.0:
             raise ValueError(f"tau must be in (0, 1], got {self.tau}")
+        if self.reward_norm not in REWARD_NORMS:
+            raise ValueError(f"reward_norm must be one of {list(REWARD_NORMS)}, got {self.reward_norm!r}")
         if self.num_envs > self.buffer_size:
             raise ValueError(f"num_envs ({self.num_envs}) must not exceed buffer_size ({self.buffer_size})")
+
+
+REWARD_NORMS = ("none", "scale", "standardise")
+
+
+def update_moments(moments, x):
+    """Running ``(count, mean, M2)`` of every reward seen so far, updated with the batch ``x``
+    (Chan et al.'s parallel combination, so the order of batches does not matter)."""
+    count, mean, m2 = moments
+    n = jnp.float32(x.size)
+    batch_mean = jnp.mean(x)
+    delta = batch_mean - mean
+    total = count + n
+    mean = mean + delta * n / total
+    m2 = m2 + jnp.sum((x - batch_mean) ** 2) + delta ** 2 * count * n / total
+    return total, mean, m2
+
+
+def normalise_rewards(cfg: "QConfig", moments, reward):
+    """Rewards as the learner sees them under ``cfg.reward_norm``. ``"scale"`` divides by the running
+    standard deviation (the optimal policy is unchanged); ``"standardise"`` also subtracts the running
+    mean, as EPyMARL's ``standardise_rewards`` does (which, with early termination, changes what the
+    optimal policy is: a negative shifted reward makes ending an episode early attractive)."""
+    if cfg.reward_norm == "none":
+        return reward
+    count, mean, m2 = moments
+    std = jnp.sqrt(jnp.maximum(m2 / jnp.maximum(count, 1.0), 1e-8))
+    if cfg.reward_norm == "standardise":
+        reward = reward - mean
+    return reward / std
 
 
 OPTIMIZERS = {"adam": optax.adam, "radam": optax.radam,
@@ -148,7 +183,7 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
                        reward=jnp.zeros((seq_len,), jnp.float32), done=jnp.zeros((seq_len,), bool))
         return dict(params=params, target=params, opt_state=tx.init(params),
                     buffer=episode_buffer.init(example, cfg.buffer_size), key=key, update=jnp.int32(0),
-                    grad_steps=jnp.int32(0))
+                    grad_steps=jnp.int32(0), reward_moments=(jnp.float32(0), jnp.float32(0), jnp.float32(0)))
 
     def collect(params, key, eps):
         """``num_envs`` fresh sequences of ``seq_len`` steps, env-major, plus the rollout metrics."""
@@ -176,7 +211,7 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
                          reward=traj["reward"], done=traj["done"])
         return jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), sequences), metrics
 
-    def loss_fn(params, target, batch):
+    def loss_fn(params, target, batch, moments):
         data = jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), batch)   # time-major
         resets = jnp.concatenate([jnp.ones_like(data["done"][:1]), data["done"]], 0)
         q = q_sequence(params["agent"], data["obs"], resets)              # [T+1, B, N, A]
@@ -190,13 +225,14 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         state = global_state(data["obs"])                                  # [T+1, B, S]
         q_tot = mixer.apply(params["mixer"], chosen, state[:-1])
         next_tot = mixer.apply(target["mixer"], next_q, state[1:])
-        y = data["reward"] + cfg.gamma * (1.0 - data["done"].astype(jnp.float32)) * next_tot
+        y = normalise_rewards(cfg, moments, data["reward"]) + cfg.gamma * (1.0 - data["done"].astype(jnp.float32)) * next_tot
         td = q_tot - jax.lax.stop_gradient(y)
         return jnp.mean(td ** 2)
 
     def learn(carry, key):
-        params, target, opt_state, buffer, grad_steps = carry
-        loss, grads = jax.value_and_grad(loss_fn)(params, target, episode_buffer.sample(buffer, key, cfg.batch_size))
+        params, target, opt_state, buffer, grad_steps, moments = carry
+        batch = episode_buffer.sample(buffer, key, cfg.batch_size)
+        loss, grads = jax.value_and_grad(loss_fn)(params, target, batch, moments)
         updates, opt_state = tx.update(grads, opt_state, params)
         params = optax.apply_updates(params, updates)
         grad_steps = grad_steps + 1
@@ -205,7 +241,7 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         else:
             copy = grad_steps % cfg.target_update_interval == 0
             target = jax.tree_util.tree_map(lambda p, t: jnp.where(copy, p, t), params, target)
-        return (params, target, opt_state, buffer, grad_steps), loss
+        return (params, target, opt_state, buffer, grad_steps, moments), loss
 
     def update(runner, key):
         k_collect, k_learn = jax.random.split(key)
@@ -213,7 +249,8 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         eps = epsilon(env_steps)
         sequences, metrics = collect(runner["params"], k_collect, eps)
         buffer = episode_buffer.add(runner["buffer"], sequences)
-        carry = (runner["params"], runner["target"], runner["opt_state"], buffer, runner["grad_steps"])
+        moments = update_moments(runner["reward_moments"], sequences["reward"])
+        carry = (runner["params"], runner["target"], runner["opt_state"], buffer, runner["grad_steps"], moments)
         ready = buffer.size * seq_len >= cfg.learning_starts
 
         def train(carry):
@@ -221,9 +258,9 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
             return carry, losses.mean()
 
         carry, loss = jax.lax.cond(ready, train, lambda c: (c, jnp.float32(jnp.nan)), carry)
-        params, target, opt_state, buffer, grad_steps = carry
+        params, target, opt_state, buffer, grad_steps, moments = carry
         runner = dict(params=params, target=target, opt_state=opt_state, buffer=buffer, key=runner["key"],
-                      update=runner["update"] + 1, grad_steps=grad_steps)
+                      update=runner["update"] + 1, grad_steps=grad_steps, reward_moments=moments)
         return runner, dict(metrics, loss=loss, epsilon=eps)
 
     def run(runner, num_updates: int):

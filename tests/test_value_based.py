@@ -39,6 +39,28 @@ def test_qmix_mixer_is_monotonic_and_vdn_sums():
     np.testing.assert_allclose(vdn.SumMixer().apply({}, q, state), q.sum(-1), rtol=1e-6)
 
 
+def test_running_reward_moments_and_normalisation():
+    from algorithms.q_learning import normalise_rewards, update_moments
+
+    batches = [np.random.default_rng(i).normal(3.0 * i, 1.0 + i, size=(4, 7)).astype(np.float32) for i in range(3)]
+    moments = (jnp.float32(0), jnp.float32(0), jnp.float32(0))
+    for batch in batches:
+        moments = update_moments(moments, jnp.asarray(batch))
+    seen = np.concatenate([b.ravel() for b in batches])
+    count, mean, m2 = (float(m) for m in moments)
+    assert count == seen.size
+    np.testing.assert_allclose([mean, m2 / count], [seen.mean(), seen.var()], rtol=1e-5)
+    r = jnp.asarray([-1.0, 0.0, 2.5])
+    np.testing.assert_array_equal(normalise_rewards(vdn.VDNConfig(), moments, r), r)
+    np.testing.assert_allclose(normalise_rewards(vdn.VDNConfig(reward_norm="scale"), moments, r), r / seen.std(), rtol=1e-5)
+    np.testing.assert_allclose(normalise_rewards(vdn.VDNConfig(reward_norm="standardise"), moments, r),
+                               (r - seen.mean()) / seen.std(), rtol=1e-5)
+    with pytest.raises(ValueError, match="reward_norm must be one of"):
+        vdn.VDNConfig(reward_norm="zscore").validate()
+    with pytest.raises(ValueError, match="learning_starts must be in"):
+        vdn.VDNConfig(learning_starts=10**12).validate()
+
+
 def test_shared_and_per_agent_parameter_shapes():
     env = marbler_jax.make("material_transport")
     small = dict(total_timesteps=4 * 71, num_envs=4, buffer_size=8, batch_size=2, learning_starts=0, hidden=16)
