@@ -4,7 +4,10 @@
 (every agent's observation concatenated) to the mixing weights, and the absolute value keeps
 ``dQ_tot / dq_i >= 0``, so the greedy joint action is the agents' independent argmaxes. ``W1`` and
 ``w2`` come from two-layer hypernetworks (``hypernet_hidden`` units, ReLU), ``b1`` from one layer,
-``V`` from ``Dense(embed) -> ReLU -> Dense(1)``, as EPyMARL's ``QMixer`` with ``hypernet_layers=2``.
+``V`` from ``Dense(embed) -> ReLU -> Dense(1)``, as EPyMARL's ``QMixer`` with ``hypernet_layers=2``,
+with PyTorch's default ``nn.Linear`` kernel initialisation (:data:`TORCH_LINEAR_INIT`; biases start at
+zero): flax's default kernels made the mixer's initial gain on the agents' Q-values ~8x larger, and
+QMIX's TD loss diverged on PCP.
 
 QMIX_NS is QMIX without parameter sharing (``shared=False``: per-agent networks vmapped over
 agents, no agent-ID one-hot). Training is :mod:`algorithms.q_learning`'s.
@@ -12,11 +15,18 @@ agents, no agent-ID one-hot). Training is :mod:`algorithms.q_learning`'s.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import flax.linen as nn
 import jax.numpy as jnp
 
 from algorithms import q_learning
+
+
+# PyTorch's ``nn.Linear`` default, U(-1/sqrt(fan_in), 1/sqrt(fan_in)): a third of flax's default
+# (lecun_normal) variance. EPyMARL's mixer is initialised this way; with flax's larger weights the two
+# hypernetwork layers scale ``Q_tot``'s gain on the agents' Q-values by ~9x and the TD loss diverges.
+TORCH_LINEAR_INIT = nn.initializers.variance_scaling(1 / 3, "fan_in", "uniform")
 
 
 class QMixer(nn.Module):
@@ -29,15 +39,17 @@ class QMixer(nn.Module):
     def __call__(self, q, state):
         n = q.shape[-1]
 
+        dense = functools.partial(nn.Dense, kernel_init=TORCH_LINEAR_INIT)
+
         def hyper(out, name):
-            h = nn.relu(nn.Dense(self.hypernet_hidden, name=f"{name}_0")(state))
-            return nn.Dense(out, name=f"{name}_1")(h)
+            h = nn.relu(dense(self.hypernet_hidden, name=f"{name}_0")(state))
+            return dense(out, name=f"{name}_1")(h)
 
         w1 = jnp.abs(hyper(n * self.embed, "hyper_w1")).reshape(state.shape[:-1] + (n, self.embed))
-        b1 = nn.Dense(self.embed, name="hyper_b1")(state)
+        b1 = dense(self.embed, name="hyper_b1")(state)
         hidden = nn.elu(jnp.einsum("...n,...ne->...e", q, w1) + b1)
         w2 = jnp.abs(hyper(self.embed, "hyper_w2"))
-        v = nn.Dense(1, name="value_1")(nn.relu(nn.Dense(self.embed, name="value_0")(state)))[..., 0]
+        v = dense(1, name="value_1")(nn.relu(dense(self.embed, name="value_0")(state)))[..., 0]
         return jnp.sum(hidden * w2, -1) + v
 
 

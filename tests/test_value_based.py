@@ -39,6 +39,24 @@ def test_qmix_mixer_is_monotonic_and_vdn_sums():
     np.testing.assert_allclose(vdn.SumMixer().apply({}, q, state), q.sum(-1), rtol=1e-6)
 
 
+def test_qmix_mixer_starts_with_a_moderate_gain_on_the_agents_q_values():
+    """With flax's default (lecun_normal) kernels the two hypernetwork layers make Q_tot ~270x as
+    sensitive to the agents' Q-values on PCP states, and QMIX's TD loss diverged (~1e3-1e4) where VDN's
+    stays ~1; PyTorch's nn.Linear init (EPyMARL's) gives ~35x."""
+    from algorithms.ippo import global_state
+
+    env = marbler_jax.make("predator_capture_prey")
+    obs, _ = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 256))
+    state, q = global_state(obs), jnp.zeros((256, env.num_agents))
+    mixer = qmix.QMixer()
+    gains = []
+    for seed in range(5):
+        params = mixer.init(jax.random.PRNGKey(seed), q, state)
+        grads = jax.vmap(jax.grad(lambda q, s: mixer.apply(params, q, s)))(q, state)
+        gains.append(float(grads.sum(-1).mean()))
+    assert 0 < np.mean(gains) < 80, gains
+
+
 def test_running_reward_moments_and_normalisation():
     from algorithms.q_learning import normalise_rewards, update_moments
 
