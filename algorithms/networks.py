@@ -21,6 +21,11 @@ import jax.numpy as jnp
 import numpy as np
 
 
+# PyTorch's ``nn.Linear`` default kernel init, U(-1/sqrt(fan_in), 1/sqrt(fan_in)): a third of flax's
+# default (lecun_normal) variance. EPyMARL's QMIX mixer is initialised this way (see algorithms.qmix).
+TORCH_LINEAR_INIT = nn.initializers.variance_scaling(1 / 3, "fan_in", "uniform")
+
+
 def orthogonal(scale: float = 1.0):
     """flax's orthogonal initializer, made safe to ``vmap`` on the CPU (same values).
 

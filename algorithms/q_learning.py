@@ -32,6 +32,7 @@ step.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import flax.linen as nn
 import jax
@@ -108,7 +109,7 @@ def update_moments(moments, x):
     return total, mean, m2
 
 
-def normalise_rewards(cfg: "QConfig", moments, reward):
+def normalise_rewards(cfg: QConfig, moments, reward):
     """Rewards as the learner sees them under ``cfg.reward_norm``. ``"scale"`` divides by the running
     standard deviation (the optimal policy is unchanged); ``"standardise"`` also subtracts the running
     mean, as EPyMARL's ``standardise_rewards`` does (which, with early termination, changes what the
@@ -229,8 +230,9 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         td = q_tot - jax.lax.stop_gradient(y)
         return jnp.mean(td ** 2)
 
-    def learn(carry, key):
-        params, target, opt_state, buffer, grad_steps, moments = carry
+    def learn(moments, carry, key):
+        """One gradient step; ``moments`` (the reward statistics) stay fixed within an update."""
+        params, target, opt_state, buffer, grad_steps = carry
         batch = episode_buffer.sample(buffer, key, cfg.batch_size)
         loss, grads = jax.value_and_grad(loss_fn)(params, target, batch, moments)
         updates, opt_state = tx.update(grads, opt_state, params)
@@ -241,7 +243,7 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         else:
             copy = grad_steps % cfg.target_update_interval == 0
             target = jax.tree_util.tree_map(lambda p, t: jnp.where(copy, p, t), params, target)
-        return (params, target, opt_state, buffer, grad_steps, moments), loss
+        return (params, target, opt_state, buffer, grad_steps), loss
 
     def update(runner, key):
         k_collect, k_learn = jax.random.split(key)
@@ -250,15 +252,16 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         sequences, metrics = collect(runner["params"], k_collect, eps)
         buffer = episode_buffer.add(runner["buffer"], sequences)
         moments = update_moments(runner["reward_moments"], sequences["reward"])
-        carry = (runner["params"], runner["target"], runner["opt_state"], buffer, runner["grad_steps"], moments)
+        carry = (runner["params"], runner["target"], runner["opt_state"], buffer, runner["grad_steps"])
         ready = buffer.size * seq_len >= cfg.learning_starts
 
         def train(carry):
-            carry, losses = jax.lax.scan(learn, carry, jax.random.split(k_learn, cfg.train_steps))
+            carry, losses = jax.lax.scan(functools.partial(learn, moments), carry,
+                                         jax.random.split(k_learn, cfg.train_steps))
             return carry, losses.mean()
 
         carry, loss = jax.lax.cond(ready, train, lambda c: (c, jnp.float32(jnp.nan)), carry)
-        params, target, opt_state, buffer, grad_steps, moments = carry
+        params, target, opt_state, buffer, grad_steps = carry
         runner = dict(params=params, target=target, opt_state=opt_state, buffer=buffer, key=runner["key"],
                       update=runner["update"] + 1, grad_steps=grad_steps, reward_moments=moments)
         return runner, dict(metrics, loss=loss, epsilon=eps)

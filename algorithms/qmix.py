@@ -5,7 +5,7 @@
 ``dQ_tot / dq_i >= 0``, so the greedy joint action is the agents' independent argmaxes. ``W1`` and
 ``w2`` come from two-layer hypernetworks (``hypernet_hidden`` units, ReLU), ``b1`` from one layer,
 ``V`` from ``Dense(embed) -> ReLU -> Dense(1)``, as EPyMARL's ``QMixer`` with ``hypernet_layers=2``,
-with PyTorch's default ``nn.Linear`` kernel initialisation (:data:`TORCH_LINEAR_INIT`; biases start at
+with PyTorch's default ``nn.Linear`` kernel initialisation (:data:`algorithms.networks.TORCH_LINEAR_INIT`; biases start at
 zero): flax's default kernels made the mixer's initial gain on the agents' Q-values ~8x larger, and
 QMIX's TD loss diverged on PCP.
 
@@ -21,12 +21,7 @@ import flax.linen as nn
 import jax.numpy as jnp
 
 from algorithms import q_learning
-
-
-# PyTorch's ``nn.Linear`` default, U(-1/sqrt(fan_in), 1/sqrt(fan_in)): a third of flax's default
-# (lecun_normal) variance. EPyMARL's mixer is initialised this way; with flax's larger weights the two
-# hypernetwork layers scale ``Q_tot``'s gain on the agents' Q-values by ~9x and the TD loss diverges.
-TORCH_LINEAR_INIT = nn.initializers.variance_scaling(1 / 3, "fan_in", "uniform")
+from algorithms.networks import TORCH_LINEAR_INIT
 
 
 class QMixer(nn.Module):
