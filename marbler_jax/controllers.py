@@ -127,3 +127,11 @@ def marbler_velocities(poses, goals, barrier=None, projection_distance: float = 
     if barrier is not None:
         dxi = barrier(dxi, xi)
     return si_to_uni_mapping(dxi, poses, projection_distance)
+
+
+def marbler_velocities_warm(poses, goals, barrier, multipliers, projection_distance: float = 0.05):
+    """:func:`marbler_velocities` with a :class:`marbler_jax.cbf.Barrier` warm-started from
+    ``multipliers`` (the previous solve's ``info.multipliers``); returns ``(velocities, multipliers)``."""
+    xi = uni_to_si_states(poses, projection_distance)
+    dxi, info = barrier.solve(si_position_controller(xi, goals), xi, warm_start=multipliers)
+    return si_to_uni_mapping(dxi, poses, projection_distance), info.multipliers

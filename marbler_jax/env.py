@@ -35,7 +35,7 @@ import numpy as np
 from flax import struct
 
 from marbler_jax import physics
-from marbler_jax.step_rules import barrier_for, control, finish_step
+from marbler_jax.step_rules import barrier_for, control, control_warm, finish_step
 from marbler_jax.scenarios.base import Scenario, ScenarioConfig
 
 
@@ -50,6 +50,9 @@ class EnvState:
         episode_return: team return so far (float32; MARBLER's reported reward).
         collided: the episode has seen a collision tick (bool).
         out_of_bounds: the episode has seen a boundary violation tick (bool).
+        cbf_multipliers: the barrier's multipliers at the last control refresh
+            (:class:`marbler_jax.cbf.Multipliers`, zeros at reset; ``None`` when the barrier is not
+            warm-started, see ``cbf_warm_start``): the next refresh starts its sweeps from them.
     """
 
     poses: jax.Array
@@ -58,6 +61,7 @@ class EnvState:
     episode_return: jax.Array
     collided: jax.Array
     out_of_bounds: jax.Array
+    cbf_multipliers: Any = None
 
 
 class MarblerEnv:
@@ -109,8 +113,15 @@ class MarblerEnv:
         state = EnvState(
             poses=jnp.asarray(poses, jnp.float32), scenario=scenario_state, step=jnp.int32(0),
             episode_return=jnp.float32(0), collided=jnp.bool_(False), out_of_bounds=jnp.bool_(False),
+            cbf_multipliers=self.initial_multipliers(),
         )
         return self.reset_obs(state), state
+
+    def initial_multipliers(self):
+        """Cold-start barrier multipliers of one env (``None`` when nothing is warm-started)."""
+        if self.barrier is None or not self.config.warm_start_barrier:
+            return None
+        return self.barrier.initial_multipliers(self.num_agents, (), jnp.float32, jnp)
 
     def reset_obs(self, state: EnvState) -> jax.Array:
         obs = self.observe(state)
@@ -142,13 +153,15 @@ class MarblerEnv:
         del key
         actions = self._check_actions(actions)
         goals = self.scenario.goals(state.poses, state.scenario, actions)
-        poses, collided, outside, dist = self.run_ticks(state.poses, goals, velocities)
+        poses, collided, outside, dist, multipliers = self.run_ticks(
+            state.poses, goals, velocities, state.cbf_multipliers)
         scenario_state, rewards, done, violated, obs, step = finish_step(
             self.scenario, poses, state.scenario, actions, collided, outside, state.step)
         episode_return = state.episode_return + self.scenario.team_reward(rewards)
         next_state = EnvState(
             poses=poses, scenario=scenario_state, step=step, episode_return=episode_return,
             collided=state.collided | collided, out_of_bounds=state.out_of_bounds | outside,
+            cbf_multipliers=multipliers,
         )
         info = {
             "collisions": collided,
@@ -169,19 +182,27 @@ class MarblerEnv:
         return state.poses
 
     # --- the control loop --------------------------------------------------------------------
-    def velocities(self, poses, goals):
-        """MARBLER's controller: SI position control of the projection point -> CBF -> (v, omega)."""
-        return control(poses, goals, self.barrier)
+    def velocities(self, poses, goals, multipliers=None):
+        """MARBLER's controller: SI position control of the projection point -> CBF -> (v, omega).
 
-    def run_ticks(self, poses, goals, velocities=None):
+        With ``multipliers`` (the last refresh's, see :class:`EnvState`) the barrier is warm-started
+        and ``(velocities, multipliers)`` is returned; without, the velocities only.
+        """
+        if multipliers is None:
+            return control(poses, goals, self.barrier)
+        return control_warm(poses, goals, self.barrier, multipliers)
+
+    def run_ticks(self, poses, goals, velocities=None, multipliers=None):
         """``update_frequency`` ticks with control refresh every ``control_period`` ticks.
 
-        Returns ``(poses, collided, out_of_bounds, dist_travelled [N])``. With
-        ``penalize_violations`` the motion stops after the first violating tick.
+        Returns ``(poses, collided, out_of_bounds, dist_travelled [N], multipliers)``. With
+        ``penalize_violations`` the motion stops after the first violating tick. ``multipliers``
+        warm-start the barrier at each refresh and come back updated (``None`` stays ``None``).
         """
         total, period = self.config.update_frequency, self.config.control_period
         full, rest = divmod(total, period)
-        carry = (poses, jnp.bool_(False), jnp.bool_(False), jnp.bool_(False), jnp.zeros(poses.shape[0], poses.dtype))
+        carry = (poses, jnp.bool_(False), jnp.bool_(False), jnp.bool_(False), jnp.zeros(poses.shape[0], poses.dtype),
+                 multipliers)
         if velocities is not None:
             velocities = jnp.asarray(velocities, poses.dtype)
             if velocities.shape != (self.num_segments, self.num_agents, 2):
@@ -189,8 +210,13 @@ class MarblerEnv:
                                  f"got {tuple(velocities.shape)}")
 
         def segment(carry, length, index):
-            pose, stopped, hit_any, out_any, dist = carry
-            vel = self.velocities(pose, goals) if velocities is None else velocities[index]
+            pose, stopped, hit_any, out_any, dist, multipliers = carry
+            if velocities is not None:
+                vel = velocities[index]
+            elif multipliers is None:
+                vel = self.velocities(pose, goals)
+            else:
+                vel, multipliers = self.velocities(pose, goals, multipliers)
             new_pose, hit, out, moved = physics.held_ticks(
                 self.params, pose, vel, length, stop_on_violation=self.config.penalize_violations)
             live = ~stopped
@@ -200,14 +226,14 @@ class MarblerEnv:
             out_any = out_any | (live & out)
             if self.config.penalize_violations:
                 stopped = stopped | hit | out
-            return (pose, stopped, hit_any, out_any, dist), None
+            return (pose, stopped, hit_any, out_any, dist, multipliers), None
 
         if full:
             carry, _ = jax.lax.scan(lambda c, i: segment(c, period, i), carry, jnp.arange(full))
         if rest:
             carry, _ = segment(carry, rest, full)
-        pose, _, hit_any, out_any, dist = carry
-        return pose, hit_any, out_any, dist
+        pose, _, hit_any, out_any, dist, multipliers = carry
+        return pose, hit_any, out_any, dist, multipliers
 
     def _check_actions(self, actions):
         """Shape/dtype errors always raise; out-of-range values raise when concrete (outside jit).

@@ -147,6 +147,45 @@ def test_jit_vmap_numpy_agree(kind):
     np.testing.assert_allclose(numpy_out, eager, atol=1e-10)
 
 
+@pytest.mark.parametrize("kind", ["si2", "si_boundary", "uni2"])
+def test_warm_start_from_the_solution_stays_there(kind):
+    # Warm-started from converged multipliers, one sweep reproduces the converged solution (the
+    # multipliers fix the primal point); a cold single sweep does not. Also: jit/vmap/numpy agree.
+    rng = np.random.default_rng(5)
+    x, u = _random_problem(rng, 6, 7)
+    if kind in cbf.UNI_KINDS:
+        x = np.concatenate([x, rng.uniform(-np.pi, np.pi, size=(6, 7, 1))], axis=-1)
+    one = cbf.make_barrier(kind, iterations=1)
+    with jax.enable_x64(True):
+        xj, uj = jnp.asarray(x), jnp.asarray(u)
+        exact, info = cbf.make_barrier(kind, iterations=400).solve(uj, xj)
+        lam = info.multipliers
+        assert lam.pairs.shape == (6, 7, 4)   # 8 slots (one phantom): 7 rounds of 4 pairs
+        assert float(jnp.max(lam.pairs)) > 0
+        warm, warm_info = jax.jit(one.solve)(uj, xj, lam)
+        cold = one(uj, xj)
+        vmapped = jax.vmap(lambda a, b, c: one.solve(a, b, c)[0])(uj, xj, lam)
+        single = one.solve(uj[0], xj[0], jax.tree_util.tree_map(lambda z: z[0], lam))[0]
+        lam_max = float(jnp.max(lam.pairs))
+    scale = float(np.abs(exact).max())
+    np.testing.assert_allclose(warm, exact, atol=1e-6 * scale)
+    assert float(np.abs(np.asarray(cold) - np.asarray(exact)).max()) > 1e-3 * scale
+    np.testing.assert_allclose(vmapped, warm, atol=1e-10 * scale)
+    np.testing.assert_allclose(single, warm[0], atol=1e-10 * scale)
+    numpy_out, _ = one.solve(u, x, jax.tree_util.tree_map(lambda z: None if z is None else np.asarray(z), lam))
+    np.testing.assert_allclose(numpy_out, warm, atol=1e-9 * scale)
+    np.testing.assert_allclose(warm_info.multipliers.pairs, lam.pairs, atol=1e-6 * lam_max)
+
+
+def test_warm_start_of_the_wrong_shape_is_rejected():
+    barrier = cbf.make_barrier("si2")
+    x = np.zeros((5, 2)) + np.arange(5)[:, None] * 0.5
+    with pytest.raises(ValueError, match="warm_start shapes"):
+        barrier.solve(np.zeros((5, 2)), x, barrier.initial_multipliers(4))
+    with pytest.raises(ValueError, match="warm_start shapes"):
+        cbf.make_barrier("si_boundary").solve(np.zeros((5, 2)), x, barrier.initial_multipliers(5))
+
+
 def _closed_loop(kind, ticks=3000, n=20, seed=0):
     """n robots on a circle swap to the antipodal point, controller + CBF refreshed every tick.
 

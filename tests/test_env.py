@@ -166,3 +166,45 @@ def test_spawn_sampler_is_uniform_over_ordered_cells():
     expected = len(draws) / 120
     chi2 = float(((observed - expected) ** 2 / expected).sum())
     assert chi2 < 180, chi2  # p ~ 3e-4 under uniformity
+
+
+def test_barrier_warm_start_carries_multipliers_and_tracks_the_exact_qp():
+    """At control period 1 the barrier is warm-started from the last refresh (state.cbf_multipliers:
+    zero at reset, zeroed again by auto-reset); with its few default sweeps the closed loop follows the
+    200-sweep solution to ~1 mm over 20 steps, where as many cold sweeps drift by centimetres."""
+    env = marbler_jax.make("predator_capture_prey")
+    assert env.config.warm_start_barrier and env.barrier.iterations == 6
+    assert marbler_jax.make("predator_capture_prey", control_period=15).reset(jax.random.PRNGKey(0))[1].cbf_multipliers is None
+    assert marbler_jax.make("predator_capture_prey", barrier_certificate="none").initial_multipliers() is None
+    with pytest.raises(ValueError, match=r"cbf_warm_start must be true or false, got 'yes' \(or None for the default\)"):
+        marbler_jax.make("predator_capture_prey", cbf_warm_start="yes")
+    _, state = env.reset(jax.random.PRNGKey(0))
+    assert state.cbf_multipliers.pairs.shape == (3, 2) and not np.any(state.cbf_multipliers.pairs)
+
+    def rollout(env, batch=64, steps=20):
+        def run(key):
+            keys = jax.random.split(key, batch)
+            _, state = jax.vmap(env.reset)(keys)
+
+            def body(state, k):
+                k_act, k_step = jax.random.split(k)
+                actions = jax.random.randint(k_act, (batch, env.num_agents), 0, env.num_actions)
+                _, state, _, done, _ = jax.vmap(env.step_env)(jax.random.split(k_step, batch), state, actions)
+                return state, (state.poses, done, state.cbf_multipliers)
+            return jax.lax.scan(body, state, jax.random.split(key, steps))[1]
+        return jax.jit(run)(jax.random.PRNGKey(1))
+
+    poses, done, multipliers = rollout(env)
+    exact, exact_done, _ = rollout(marbler_jax.make("predator_capture_prey", cbf_iterations=200, cbf_warm_start=False))
+    cold, _, _ = rollout(marbler_jax.make("predator_capture_prey", cbf_iterations=6, cbf_warm_start=False))
+    assert float(jnp.max(multipliers.pairs)) > 0
+    np.testing.assert_array_equal(done, exact_done)
+    warm_drift = float(jnp.abs(poses - exact)[..., :2].max())
+    cold_drift = float(jnp.abs(cold - exact)[..., :2].max())
+    assert warm_drift < 5e-3 < cold_drift, (warm_drift, cold_drift)
+    # auto-reset starts the next episode cold
+    state = jax.tree_util.tree_map(lambda x: x[-1, 0], multipliers)
+    _, s = env.reset(jax.random.PRNGKey(2))
+    s = s.replace(cbf_multipliers=state, step=jnp.int32(env.config.max_episode_steps))
+    _, after, _, done, _ = env.step(jax.random.PRNGKey(3), s, jnp.zeros(env.num_agents, jnp.int32))
+    assert bool(done) and not np.any(after.cbf_multipliers.pairs)

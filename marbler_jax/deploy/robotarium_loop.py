@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from marbler_jax import physics
-from marbler_jax.step_rules import control, finish_step
+from marbler_jax.step_rules import control, control_warm, finish_step
 
 
 @dataclass
@@ -92,6 +92,10 @@ def run_episode(robotarium, scenario, policy, scenario_state, barrier=None, para
     if config.zero_reset_obs:
         obs = np.zeros_like(obs)
     hidden = policy.initial_hidden()
+    # The barrier is warm-started from the previous refresh, exactly as in the batched env.
+    multipliers = None
+    if barrier is not None and config.warm_start_barrier:
+        multipliers = barrier.initial_multipliers(n, (), np.float64)
     step, done = 0, False
     log.poses.append(poses)
     while not done:
@@ -107,7 +111,11 @@ def run_episode(robotarium, scenario, policy, scenario_state, barrier=None, para
             out = bool(np.any(physics.out_of_bounds(params, poses)))
             collided, outside = collided or hit, outside or out
             if tick % config.control_period == 0:
-                velocities = np.asarray(control(poses, goals, barrier), dtype=np.float64)
+                if multipliers is None:
+                    velocities = np.asarray(control(poses, goals, barrier), dtype=np.float64)
+                else:
+                    velocities, multipliers = control_warm(poses, goals, barrier, multipliers)
+                    velocities = np.asarray(velocities, dtype=np.float64)
             robotarium.set_velocities(ids, np.array(velocities.T))
             log.compute_s.append(time.perf_counter() - started)
             robotarium.step()

@@ -39,10 +39,16 @@ class ScenarioConfig:
             by up to 90 degrees between refreshes, so collisions and boundary violations occur.
         barrier_certificate: ``"safe"`` (MARBLER default: certificate2, radius 0.2), ``"default"``
             (certificate, radius 0.17), ``"none"``, or an SI kind of :mod:`marbler_jax.cbf`.
-        cbf_iterations: solver sweeps of the barrier (``None``: 8 + 2N, which matches every golden
-            rps case of the MARBLER certificate at N = 4; see
+        cbf_iterations: solver sweeps of the barrier per control refresh (``None``:
+            :func:`marbler_jax.step_rules.default_cbf_iterations`, ``8 + N`` cold or ``3 + 3N/4``
+            warm-started at ``control_period=1``, chosen on env trajectories; see
             :func:`marbler_jax.cbf.default_iterations` for the budget that matches arbitrary,
             overlapping configurations at any N).
+        cbf_warm_start: start each control refresh's barrier sweeps from the previous refresh's
+            multipliers (kept in the env state, zero at reset). The QP's solution does not depend
+            on the start, only how close the fixed sweep budget gets to it. ``None`` (default): on
+            at ``control_period=1``, where consecutive refreshes solve nearly the same problem, off
+            otherwise (15 ticks apart the robots have moved too far for it to help).
         penalize_violations: end the step at the first collision / boundary tick, give every agent
             the scenario's violation reward and end the episode (MARBLER).
         physics: physics preset name (``"robotarium"``, ``"marbler"``, ``"rps2024"``).
@@ -56,6 +62,7 @@ class ScenarioConfig:
     control_period: int = 1
     barrier_certificate: str = "safe"
     cbf_iterations: int | None = None
+    cbf_warm_start: bool | None = None
     penalize_violations: bool = True
     physics: str = "robotarium"
     zero_reset_obs: bool = False
@@ -63,6 +70,13 @@ class ScenarioConfig:
     RIGHT: float = 1.4
     UP: float = -0.9
     DOWN: float = 0.9
+
+    @property
+    def warm_start_barrier(self) -> bool:
+        """Whether the barrier is warm-started (``cbf_warm_start`` with ``None`` resolved)."""
+        if self.cbf_warm_start is None:
+            return self.control_period == 1
+        return bool(self.cbf_warm_start)
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad value and what is allowed."""
@@ -126,7 +140,10 @@ def _coerce(name: str, value: Any, hint: Any) -> Any:
         if value is None and type(None) in args:
             return None
         inner = [a for a in args if a is not type(None)]
-        return _coerce(name, value, inner[0])
+        try:
+            return _coerce(name, value, inner[0])
+        except ValueError as err:
+            raise ValueError(f"{err} (or None for the default)" if type(None) in args else str(err)) from None
     if hint is bool:
         if isinstance(value, (bool, np.bool_)):
             return bool(value)
