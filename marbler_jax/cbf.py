@@ -31,7 +31,9 @@ exploit the structure:
   round-robin tournament; the pairs of a round are disjoint, so a whole round is updated at once
   with exactly the Gauss-Seidel result (N-1 vector steps per sweep instead of C(N,2) scalar ones);
 * boundary rows act on one coordinate each and are handled as per-robot boxes in one step;
-* distant pairs have ``b`` far above anything ``A u`` reaches and simply keep ``l = 0``.
+* distant pairs have ``b`` far above anything ``A u`` reaches and simply keep ``l = 0``;
+* ``solve(..., warm_start=info.multipliers)`` starts from an earlier solve's multipliers and the
+  primal point ``u_hat - A^T l`` they give (a consecutive control refresh barely moves the optimum).
 
 The solver never divides by zero: rows with ``e = 0`` (coincident robots) are skipped and reported.
 If the constraints are infeasible (coincident robots, boxes with lo > hi, or conflicting walls)

@@ -173,7 +173,7 @@ def _train(args) -> int:
     if args.hang_seconds < 0:
         raise ValueError(f"--hang-seconds must be >= 0 (0 = off), got {args.hang_seconds}")
     train(args.scenario, args.algo, total, args.seeds, args.out, env_overrides=env_overrides, hp=hp,
-          checkpoint_every=args.checkpoint_every, resume=args.resume, progress=not args.no_progress,
+          checkpoint_every=args.checkpoint_every, resume=args.resume, seed=args.seed, progress=not args.no_progress,
           seed_batching=args.seed_batching, hang_seconds=args.hang_seconds,
           on_hang=lambda idle: _restart_resumed(args.argv, idle))
     print(f"run folder: {args.out}")
@@ -333,6 +333,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="settings to start from (fast: our CPU setting; paper: MARBLER/EPyMARL's; none)")
     tr.add_argument("--total-steps", default=None, help="env steps per seed (e.g. 5e6; default: the preset's)")
     tr.add_argument("--seeds", type=int, default=1, help="seeds trained in one vmapped program")
+    tr.add_argument("--seed", type=int, default=0,
+                    help="base PRNG seed: the seeds' keys are split from PRNGKey(seed) (default 0)")
     tr.add_argument("--out", default="runs/train")
     tr.add_argument("--set", action="append", metavar="KEY=VALUE", help="env config override (repeatable)")
     tr.add_argument("--hp", action="append", metavar="KEY=VALUE", help="algorithm setting (repeatable)")

@@ -40,8 +40,9 @@ def test_train_writes_a_complete_run_folder(tmp_path):
     import json
 
     out = tmp_path / "run"
-    code = main(["train", "--scenario", "warehouse", "--total-steps", "2048", "--seeds", "2", "--out", str(out),
-                 "--hp", "num_envs=16", "--hp", "num_steps=16", "--hp", "hidden=32"])
+    args = ["train", "--scenario", "warehouse", "--total-steps", "2048", "--seeds", "2", "--out", str(out),
+            "--hp", "num_envs=16", "--hp", "num_steps=16", "--hp", "hidden=32"]
+    code = main(args + ["--seed", "7"])
     assert code == 0
     for name in ("config.json", "metrics.jsonl", "learning_curve.png", "params.npz", "evaluation.json"):
         assert (out / name).exists(), name
@@ -49,7 +50,8 @@ def test_train_writes_a_complete_run_folder(tmp_path):
     events = list((out / "tensorboard").glob("events.out.tfevents.*"))   # tensorboardX is in the test extra
     assert events and b"train/return_mean" in events[0].read_bytes() and b"train/sps" in events[0].read_bytes()
     config = json.loads((out / "config.json").read_text())
-    assert config["algo"] == "ippo" and config["algorithm"]["total_timesteps"] == 2048
+    assert config["algo"] == "ippo" and config["algorithm"]["total_timesteps"] == 2048 and config["seed"] == 7
+    assert main(args + ["--seed", "8", "--resume"]) == 2      # a resume must keep the run's seed
     lines = (out / "metrics.jsonl").read_text().splitlines()
     assert len(lines) == 2048 // (16 * 16)
     evaluation = json.loads((out / "evaluation.json").read_text())
