@@ -9,9 +9,15 @@ episode (here 8 episodes and 8 gradient steps per update), 5M env steps (MAPPO 2
 a CPU by design (GRU-128 gradient steps dominate: ~1k env-steps/s).
 
 ``"fast"`` (the default of ``marbler-jax train``) is our CPU setting: the same env, smaller GRUs
-(64), 32 episodes collected per update and 4 gradient steps per update (1 per 8 episodes), target
-copies every 100 gradient steps, a longer epsilon decay; PPO with 64 envs x 64 steps. ``"none"``
-leaves every setting at the algorithm's and scenario's defaults.
+(64), 32 episodes collected per update and 32 gradient steps per update (EPyMARL's one per
+collected episode), target copies every 100 gradient steps, a longer epsilon decay; PPO with 64
+envs x 64 steps. ``"none"`` leaves every setting at the algorithm's and scenario's defaults.
+
+The value-based ``fast`` setting used 4 gradient steps per update (one per 8 episodes) until
+2026-11-21: 8x the env-steps/s (~21k vs ~2.7k), but VDN on PCP levelled off at a training return of
+~16 (greedy 16-18, 2 seeds, still 15.6 after 5M steps), where one step per episode reaches 23-29
+after 2M steps; on Warehouse 1.9 -> 24.0 (RESULTS.md). Sample reuse, not env throughput, is what
+these learners need.
 """
 from __future__ import annotations
 
@@ -33,7 +39,7 @@ _PAPER_HP = {
     "ippo": dict(hidden=128, lr=2e-4, update_epochs=4, clip_eps=0.2, ent_coef=0.01, num_envs=64, num_steps=64),
 }
 
-_FAST_Q = dict(hidden=64, lr=5e-4, target_update_interval=100, num_envs=32, train_steps=4, buffer_size=1000,
+_FAST_Q = dict(hidden=64, lr=5e-4, target_update_interval=100, num_envs=32, train_steps=32, buffer_size=1000,
                batch_size=32, eps_decay_steps=200_000, learning_starts=10_000)
 
 _FAST_HP = {
