@@ -117,11 +117,11 @@ class MarblerEnv:
         )
         return self.reset_obs(state), state
 
-    def initial_multipliers(self):
+    def initial_multipliers(self, dtype=jnp.float32):
         """Cold-start barrier multipliers of one env (``None`` when nothing is warm-started)."""
         if self.barrier is None or not self.config.warm_start_barrier:
             return None
-        return self.barrier.initial_multipliers(self.num_agents, (), jnp.float32, jnp)
+        return self.barrier.initial_multipliers(self.num_agents, (), dtype, jnp)
 
     def reset_obs(self, state: EnvState) -> jax.Array:
         obs = self.observe(state)
@@ -215,8 +215,9 @@ class MarblerEnv:
                 vel = velocities[index]
             elif multipliers is None:
                 vel = self.velocities(pose, goals)
-            else:
-                vel, multipliers = self.velocities(pose, goals, multipliers)
+            else:   # the multipliers keep their dtype (a float32 state stays float32 under x64)
+                vel, updated = self.velocities(pose, goals, multipliers)
+                multipliers = jax.tree_util.tree_map(lambda new, old: new.astype(old.dtype), updated, multipliers)
             new_pose, hit, out, moved = physics.held_ticks(
                 self.params, pose, vel, length, stop_on_violation=self.config.penalize_violations)
             live = ~stopped

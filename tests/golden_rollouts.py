@@ -80,7 +80,7 @@ def base_state(env, poses, scenario_state):
 
     return EnvState(poses=jnp.asarray(poses, jnp.float64), scenario=scenario_state, step=jnp.int32(0),
                     episode_return=jnp.float64(0), collided=jnp.bool_(False), out_of_bounds=jnp.bool_(False),
-                    cbf_multipliers=env.initial_multipliers())
+                    cbf_multipliers=env.initial_multipliers(jnp.float64))
 
 
 def recorded_velocities(env, episode: Episode, t: int) -> np.ndarray:

@@ -53,7 +53,7 @@ def replay_trace(bundle, trace, physics: str = "marbler") -> list[dict]:
         scenario = dataclasses.replace(template.scenario, **{n: jnp.asarray(v[k]) for n, v in fields.items()})
         start = EnvState(poses=jnp.asarray(poses0[k], dtype), scenario=scenario, step=jnp.int32(0),
                          episode_return=jnp.zeros((), dtype), collided=jnp.bool_(False),
-                         out_of_bounds=jnp.bool_(False), cbf_multipliers=env.initial_multipliers())
+                         out_of_bounds=jnp.bool_(False), cbf_multipliers=env.initial_multipliers(dtype))
         free, forced = start, start
         obs = env.reset_obs(start)
         hidden = policy.initial_hidden()
