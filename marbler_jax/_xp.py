@@ -48,6 +48,46 @@ def fori_loop(xp, lower: int, upper: int, body: Callable[[int, Any], Any], init:
     return sys.modules["jax"].lax.fori_loop(lower, upper, body, init)
 
 
+def to_minor(a, batch_ndim: int, xp):
+    """``[*batch, *rest] -> [*rest, B]``: the flattened batch becomes the minor (SIMD) axis."""
+    rest = a.shape[batch_ndim:]
+    flat = a.reshape((-1,) + rest)
+    return xp.moveaxis(flat, 0, -1)
+
+
+def from_minor(a, batch_shape, xp):
+    """Inverse of :func:`to_minor`: ``[*rest, B] -> [*batch, *rest]``."""
+    return xp.moveaxis(a, -1, 0).reshape(tuple(batch_shape) + a.shape[:-1])
+
+
+def vmap_in_place(fn: Callable) -> Callable:
+    """``fn`` (which already accepts any leading batch axes) with a vmap rule that calls it on the
+    batched arrays instead of letting ``jax.vmap`` map it.
+
+    Plain ``jax.vmap`` puts the mapped axis first, where XLA's CPU backend cannot vectorise over
+    it; a function written for batch-minor arrays (see :func:`to_minor`) keeps every op unit-stride
+    over the whole batch. Nested vmaps (seeds x envs) apply the rule once per level; unbatched
+    arguments are broadcast. Arguments are arrays or pytrees of arrays (``None`` leaves allowed).
+    Only for JAX inputs.
+    """
+    jax = jax_module()
+
+    @jax.custom_batching.custom_vmap
+    def wrapped(*args):
+        return fn(*args)
+
+    @wrapped.def_vmap
+    def _rule(axis_size, in_batched, *args):
+        def batched(a, is_batched):
+            return a if is_batched else jax.numpy.broadcast_to(a, (axis_size,) + a.shape)
+
+        args = jax.tree_util.tree_map(batched, args, tuple(in_batched))
+        out = wrapped(*args)
+        return out, jax.tree_util.tree_map(lambda _: True, out)
+
+    return wrapped
+
+
 def result_dtype(xp, *arrays: Any):
     """Floating dtype shared by ``arrays`` (float32 for integer inputs)."""
     dtype = xp.result_type(*arrays)

@@ -27,6 +27,7 @@ transition (``info["returned_episode"]`` is True and the episode metrics are the
 from __future__ import annotations
 
 import functools
+import math
 from typing import Any
 
 import jax
@@ -35,6 +36,7 @@ import numpy as np
 from flax import struct
 
 from marbler_jax import physics
+from marbler_jax._xp import vmap_in_place
 from marbler_jax.step_rules import barrier_for, control, control_warm, finish_step
 from marbler_jax.scenarios.base import Scenario, ScenarioConfig
 
@@ -134,10 +136,47 @@ class MarblerEnv:
         """One env step with auto-reset: ``(obs, state, rewards [N], done, info)``."""
         key_step, key_reset = jax.random.split(key)
         obs, next_state, rewards, done, info = self.step_env(key_step, state, actions)
-        reset_obs, reset_state = self.reset(key_reset)
-        next_state = jax.tree_util.tree_map(lambda r, s: jnp.where(done, r, s), reset_state, next_state)
-        obs = jnp.where(done, reset_obs, obs)
+        obs, next_state = self._auto_reset(done, key_reset, obs, next_state)
         return obs, next_state, rewards, done, info
+
+    @functools.cached_property
+    def _auto_reset(self):
+        """``(done, key, obs, state) -> (obs, state)`` with the finished envs replaced by
+        ``reset(key)``; batched over any leading axes, also under ``jax.vmap`` (see
+        :func:`marbler_jax._xp.vmap_in_place`)."""
+        return vmap_in_place(self._reset_where)
+
+    def _reset_where(self, done, key, obs, state):
+        """Replace the envs where ``done [...]`` by a fresh ``reset(key)``.
+
+        A batch of ``B >= 64`` envs resets only the finished ones when at most ``B // 8`` finished
+        this step (the usual case: episodes end at different steps): their keys are gathered, reset,
+        and scattered back. More finished envs (e.g. a whole batch truncated at the same step) take
+        the plain path that resets every env and selects. Both give the same result (to float
+        rounding): each env's reset depends only on its own key.
+        """
+        batch = done.shape
+        size = math.prod(batch)
+        flat = jax.tree_util.tree_map(lambda a: a.reshape((size,) + a.shape[len(batch):]), (done, key, obs, state))
+        done, key, obs, state = flat
+
+        def reset_all(_):
+            reset_obs, reset_state = jax.vmap(self.reset)(key)
+            select = lambda r, s: jnp.where(done.reshape((size,) + (1,) * (s.ndim - 1)), r, s)
+            return select(reset_obs, obs), jax.tree_util.tree_map(select, reset_state, state)
+
+        def reset_finished(_):
+            (slots,) = jnp.nonzero(done, size=capacity, fill_value=size)   # size = "no env": dropped
+            reset_obs, reset_state = jax.vmap(self.reset)(jnp.take(key, slots, axis=0, mode="clip"))
+            put = lambda s, r: s.at[slots].set(r, mode="drop")
+            return put(obs, reset_obs), jax.tree_util.tree_map(put, state, reset_state)
+
+        capacity = size // 8
+        if size < 64:
+            obs, state = reset_all(None)
+        else:
+            obs, state = jax.lax.cond(jnp.sum(done) <= capacity, reset_finished, reset_all, None)
+        return jax.tree_util.tree_map(lambda a: a.reshape(batch + a.shape[1:]), (obs, state))
 
     @property
     def num_segments(self) -> int:

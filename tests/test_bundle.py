@@ -30,6 +30,8 @@ REPO = Path(__file__).resolve().parents[1]
 RPS_VENV = REPO / ".rps-venv"
 
 # scenario -> (algorithm module, config, algo name, env overrides): every architecture we train
+pytestmark = pytest.mark.xdist_group("bundles")   # one worker builds the module's bundles once
+
 UNTRAINED = {
     "predator_capture_prey": (vdn, vdn.VDNConfig(hidden=16), "vdn", {"control_period": 15}),
     "warehouse": (qmix, qmix.QMIXNSConfig(hidden=16), "qmix_ns", {}),

@@ -279,3 +279,43 @@ def test_round_robin_covers_every_pair_once():
         pairs = {tuple(sorted(p)) for p in zip(first.ravel(), second.ravel()) if max(p) < n}
         assert pairs == {(i, j) for i in range(n) for j in range(i + 1, n)}
         assert len([p for p in zip(first.ravel(), second.ravel()) if max(p) < n]) == n * (n - 1) // 2
+
+
+def _teams(rng, count, crowded):
+    """``count`` teams of 4: spread 1 m apart with slow nominal inputs (every row holds), or crowded
+    within 0.3 m and driven into each other (rows violated)."""
+    if crowded:
+        x = rng.uniform(-0.15, 0.15, size=(count, 4, 2))
+        u = -x / np.linalg.norm(x, axis=-1, keepdims=True) * 0.2
+    else:
+        x = np.array([[-1.0, -0.5], [0.0, -0.5], [-1.0, 0.5], [0.0, 0.5]]) + rng.uniform(-0.05, 0.05, size=(count, 4, 2))
+        u = rng.normal(size=(count, 4, 2)) * 0.05
+    return x, u
+
+
+@pytest.mark.parametrize("kind", ["si2", "si_boundary"])
+def test_teams_whose_nominal_input_holds_skip_the_sweeps(kind):
+    """Holding teams get u_hat back exactly with zero multipliers; the gathered path (few teams to
+    solve) and the whole-batch path agree (to float32 rounding) and with the numpy per-team solve."""
+    barrier = cbf.make_barrier(kind, iterations=12)
+    rng = np.random.default_rng(0)
+    x_few, u_few = (np.concatenate(p) for p in zip(_teams(rng, 100, False), _teams(rng, 28, True)))
+    x_many, u_many = _teams(rng, 300, True)
+    solve = jax.jit(barrier.solve)
+    u_a, info_a = solve(jnp.asarray(u_few, jnp.float32), jnp.asarray(x_few, jnp.float32))       # 28 of 128 solved
+    u_b, info_b = solve(jnp.asarray(np.concatenate([u_few, u_many]), jnp.float32),
+                        jnp.asarray(np.concatenate([x_few, x_many]), jnp.float32))          # 328 of 428: all
+    # same maths on a different batch size: equal up to float32 rounding
+    np.testing.assert_allclose(u_a, u_b[:128], rtol=1e-5, atol=1e-6)
+    jax.tree_util.tree_map(lambda a, b: np.testing.assert_allclose(a, b[:128], rtol=1e-5, atol=1e-6),
+                           info_a.multipliers, info_b.multipliers)
+    np.testing.assert_array_equal(u_b[:100], u_a[:100])
+    u_hat = controllers.cap_norm(jnp.asarray(u_few[:100], jnp.float32), barrier.magnitude_limit)
+    np.testing.assert_array_equal(u_a[:100], u_hat)
+    assert not np.any(np.asarray(info_a.multipliers.pairs[:100])) and int(info_a.active[:100].sum()) == 0
+    assert int(info_a.active[100:].min()) > 0
+    for i in (0, 99, 100, 127):
+        u_np, _ = barrier.solve(u_few[i], x_few[i])
+        np.testing.assert_allclose(u_a[i], u_np, atol=1e-4 * (1 + np.abs(u_np).max()))
+    u_v, _ = jax.jit(jax.vmap(barrier.solve))(jnp.asarray(u_few, jnp.float32), jnp.asarray(x_few, jnp.float32))
+    np.testing.assert_array_equal(u_v, u_a)

@@ -208,3 +208,33 @@ def test_barrier_warm_start_carries_multipliers_and_tracks_the_exact_qp():
     s = s.replace(cbf_multipliers=state, step=jnp.int32(env.config.max_episode_steps))
     _, after, _, done, _ = env.step(jax.random.PRNGKey(3), s, jnp.zeros(env.num_agents, jnp.int32))
     assert bool(done) and not np.any(after.cbf_multipliers.pairs)
+
+
+@pytest.mark.parametrize("finished", [5, 40])
+def test_batched_auto_reset_resets_exactly_the_finished_envs(finished):
+    """A batch resets only its finished envs when few finished (<= 1/8) and resets all otherwise; both
+    paths equal stepping without auto-reset, then ``reset(key_reset)`` where done."""
+    env = marbler_jax.make("predator_capture_prey", control_period=15)
+    batch = 128
+    keys = jax.random.split(jax.random.PRNGKey(5), batch)
+    _, state = jax.vmap(env.reset)(keys)
+    ending = np.zeros(batch, bool)
+    ending[np.random.default_rng(finished).choice(batch, finished, replace=False)] = True
+    state = state.replace(step=jnp.where(ending, env.config.max_episode_steps, 3).astype(jnp.int32))
+    actions = jax.random.randint(jax.random.PRNGKey(6), (batch, env.num_agents), 0, env.num_actions)
+    step_keys = jax.random.split(jax.random.PRNGKey(7), batch)
+    obs, new_state, rewards, done, info = jax.jit(jax.vmap(env.step))(step_keys, state, actions)
+
+    def reference(key, state, actions):
+        key_step, key_reset = jax.random.split(key)
+        obs, state, rewards, done, info = env.step_env(key_step, state, actions)
+        reset_obs, reset_state = env.reset(key_reset)
+        state = jax.tree_util.tree_map(lambda r, s: jnp.where(done, r, s), reset_state, state)
+        return jnp.where(done, reset_obs, obs), state, done
+
+    ref_obs, ref_state, ref_done = jax.jit(jax.vmap(reference))(step_keys, state, actions)
+    np.testing.assert_array_equal(done, ref_done)
+    assert int(done.sum()) >= finished
+    np.testing.assert_allclose(obs, ref_obs, atol=1e-6)
+    jax.tree_util.tree_map(lambda a, b: np.testing.assert_allclose(a, b, atol=1e-6), new_state, ref_state)
+    np.testing.assert_array_equal(new_state.step, np.where(done, 0, state.step + 1))

@@ -144,3 +144,61 @@ def test_trajectory_matches_tick_loop_and_rps(golden):
     out_np = physics.trajectory(params, traj[:, 0], cmd, 7)
     for k in range(8):
         assert _pose_err(out_np[k], physics.integrate(params, traj[:, 0], cmd, k)) <= 1e-12
+
+
+def _held_ticks_reference(params, poses, vel, ticks, stop):
+    """rps's loop, one tick at a time: check the pre-tick pose, then integrate (numpy, float64)."""
+    vel = physics.threshold(params, vel)
+    batch = poses.shape[:-2]
+    hit, out, stopped = (np.zeros(batch, bool) for _ in range(3))
+    dist = np.zeros(poses.shape[:-1])
+    for _ in range(ticks):
+        hit_now = physics.collisions(params, poses).any(-1)
+        out_now = physics.out_of_bounds(params, poses).any(-1)
+        live = ~stopped
+        hit |= live & hit_now
+        out |= live & out_now
+        poses = np.where(live[..., None, None], physics.integrate(params, poses, vel, 1), poses)
+        dist += np.where(live[..., None], np.abs(vel[..., 0]) * params.dt, 0)
+        if stop:
+            stopped |= hit_now | out_now
+    return poses, hit, out, dist
+
+
+def _crowded(rng, batch, n):
+    """Poses in a small box (many close pairs, some robots outside the arena) and mixed commands."""
+    xy = rng.uniform([-1.8, -0.6], [-1.8 + 0.22 * n, 0.6], size=(batch, n, 2))
+    poses = np.concatenate([xy, rng.uniform(-np.pi, np.pi, size=(batch, n, 1))], axis=-1)
+    vel = rng.uniform([-0.25, -4.0], [0.25, 4.0], size=(batch, n, 2))
+    return poses, vel
+
+
+@pytest.mark.parametrize("n", [1, 5, 20])
+@pytest.mark.parametrize("stop", [True, False])
+def test_held_ticks_matches_the_tick_by_tick_rps_loop(n, stop, monkeypatch):
+    """numpy float64 == rps's loop; JAX float32 batched, vmapped and vmap(vmap) agree with it, with
+    either collision test layout (static slices for small teams, the masked [N, N] block for large)."""
+    params = physics.PRESETS["robotarium"]
+    rng = np.random.default_rng(n)
+    poses, vel = _crowded(rng, 24, n)
+    ref = _held_ticks_reference(params, poses, vel, 15, stop)
+    got = physics.held_ticks(params, poses, vel, 15, stop_on_violation=stop)
+    for a, b in zip(got[1:], ref[1:]):
+        np.testing.assert_allclose(a, b, atol=1e-12)
+    assert _pose_err(got[0], ref[0]) <= 1e-12
+    assert 0 < ref[1].sum() < len(poses) or n == 1  # the cases exercise both outcomes
+    for threshold in (2, 100):  # force each collision layout
+        monkeypatch.setattr(physics, "_BROADCAST_PAIRS_FROM", threshold)
+        physics._jax_held_ticks.cache_clear()
+        run = lambda p, v: physics.held_ticks(params, p, v, 15, stop_on_violation=stop)
+        p32, v32 = jnp.asarray(poses, jnp.float32), jnp.asarray(vel, jnp.float32)
+        outs = [jax.jit(run)(p32, v32), jax.jit(jax.vmap(run))(p32, v32),
+                jax.tree_util.tree_map(lambda a: a.reshape((24,) + a.shape[2:]),
+                                       jax.jit(jax.vmap(jax.vmap(run)))(p32.reshape(4, 6, n, 3), v32.reshape(4, 6, n, 2)))]
+        for out in outs:
+            # float32 rounding can flip a check that sits within ~1e-7 m of its threshold: allow one case
+            flags_equal = (np.asarray(out[1]) == ref[1]) & (np.asarray(out[2]) == ref[2])
+            assert flags_equal.sum() >= len(poses) - 1
+            assert _pose_err(np.asarray(out[0])[flags_equal], ref[0][flags_equal]) <= 2e-5
+            np.testing.assert_allclose(np.asarray(out[3])[flags_equal], ref[3][flags_equal], atol=1e-6)
+    physics._jax_held_ticks.cache_clear()
