@@ -49,7 +49,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from marbler_jax import controllers
-from marbler_jax._xp import fori_loop, from_minor, is_jax, jax_module, namespace, result_dtype, to_minor, vmap_in_place
+from marbler_jax._xp import fori_loop, from_minor, is_jax, namespace, result_dtype, to_minor, vmap_in_place
 
 SI_KINDS = ("si", "si2", "si_boundary")
 UNI_KINDS = ("uni", "uni2", "uni_boundary")
@@ -341,12 +341,8 @@ def _incidence(n: int) -> np.ndarray:
 def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None = None):
     """The SI certificate QP for ``positions [..., N, 2]``; returns ``(u [..., N, 2], info)``.
 
-    A team whose capped nominal input ``u_hat`` already satisfies every row gets ``u_hat`` back with
-    zero multipliers -- the exact solution, and what the sweeps return from a cold start anyway (every
-    step is zero). Only the other teams run the sweeps (:func:`_sweeps`); under JAX a batch of at
-    least 64 teams gathers them when they are at most half the batch (robots far apart, as in most
-    env refreshes), solves only those and scatters the results back, and otherwise solves every
-    team and selects. Both paths do the same arithmetic per team (equal up to float rounding). ``warm_start`` (multipliers of a previous
+    Internally every batch axis is folded into the last (minor) axis, so each vector step of the
+    sweep runs over the whole batch with unit stride. ``warm_start`` (multipliers of a previous
     solve) sets the initial multipliers and the matching primal point ``u_hat - A^T lambda``.
     """
     xp = namespace(u_nom, positions)
@@ -357,91 +353,19 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
         zero = xp.zeros(batch, dtype=u_hat.dtype)
         return u_hat, CertificateInfo(zero, zero == 0, zero.astype(xp.int32),
                                       barrier.initial_multipliers(0, batch, u_hat.dtype, xp))
-    e, b, a2, valid = _pair_rows(barrier, positions, xp)
-    boxed = barrier.boundary_points is not None
-    lo, hi = _boxes(barrier, positions, xp) if boxed else (None, None)
-    holds = _holds(u_hat, e, b, valid, lo, hi, xp)
-    problem = (u_hat, e, b, a2, lo, hi, warm_start)
-    size = math.prod(batch)
-    if xp is not np and size >= 64:
-        solved = _solve_where_needed(barrier, problem, holds, size // 2)
-    else:
-        solved = _select_solved(holds, problem, _sweeps(barrier, *problem), xp)
-    u, lam, lam_lo, lam_hi = solved
-    info = _diagnostics(barrier, u, e, b, a2, valid, lam, lo, hi, lam_lo, lam_hi, xp)
-    return u, info._replace(multipliers=Multipliers(lam, lam_lo, lam_hi))
-
-
-def _holds(u, e, b, valid, lo, hi, xp):
-    """``[...]``: ``u`` satisfies every pair row (and box) -- then every sweep step from zero
-    multipliers is zero (the sweeps' own violation arithmetic, so the test agrees with them)."""
-    n = u.shape[-2]
-    first, second = round_robin(n)
-    padded = xp.concatenate([u, xp.zeros(u.shape[:-2] + (n % 2, 2), dtype=u.dtype)], axis=-2)
-    d = padded[..., second, :] - padded[..., first, :]
-    viol = 2 * e[..., 0] * d[..., 0] + 2 * e[..., 1] * d[..., 1] - b
-    flat = u.shape[:-2] + (-1,)
-    holds = ~xp.any((valid & (viol > 0)).reshape(flat), axis=-1)
-    if lo is not None:
-        holds = holds & ~xp.any(((u > hi) | (u < lo)).reshape(flat), axis=-1)
-    return holds
-
-
-def _select_solved(holds, problem, solved, xp):
-    """Teams where ``u_hat`` holds keep it, with zero multipliers."""
-    u_hat = problem[0]
-    keep = lambda a, b: None if b is None else xp.where(holds.reshape(holds.shape + (1,) * (b.ndim - holds.ndim)), a, b)
-    u, lam, lam_lo, lam_hi = solved
-    zero = lambda a: None if a is None else xp.zeros_like(a)
-    return keep(u_hat, u), keep(zero(lam), lam), keep(zero(lam_lo), lam_lo), keep(zero(lam_hi), lam_hi)
-
-
-def _solve_where_needed(barrier: Barrier, problem, holds, capacity: int):
-    """JAX: run the sweeps on the teams where ``u_hat`` does not hold -- gathered, when there are at
-    most ``capacity`` of them (static), else on the whole batch -- and scatter the results back."""
-    jax = jax_module()
-    jnp = jax.numpy
-    batch = holds.shape
-    size = math.prod(batch)
-    flat = jax.tree_util.tree_map(lambda a: a.reshape((size,) + a.shape[len(batch):]), problem)
-    holds_flat = holds.reshape(size)
-
-    def solve_all(_):
-        return _select_solved(holds_flat, flat, _sweeps(barrier, *flat), jnp)
-
-    def solve_gathered(_):
-        (slots,) = jnp.nonzero(~holds_flat, size=capacity, fill_value=size)   # size = "no team": dropped
-        sub = jax.tree_util.tree_map(lambda a: jnp.take(a, slots, axis=0, mode="clip"), flat)
-        u, lam, lam_lo, lam_hi = _sweeps(barrier, *sub)
-        u_hat = flat[0]
-        put = lambda base, part: None if part is None else base.at[slots].set(part, mode="drop")
-        zeros = lambda part: None if part is None else jnp.zeros((size,) + part.shape[1:], part.dtype)
-        return put(u_hat, u), put(zeros(lam), lam), put(zeros(lam_lo), lam_lo), put(zeros(lam_hi), lam_hi)
-
-    solved = jax.lax.cond(jnp.sum(~holds_flat) <= capacity, solve_gathered, solve_all, None)
-    return jax.tree_util.tree_map(lambda a: a.reshape(batch + a.shape[1:]), solved)
-
-
-def _sweeps(barrier: Barrier, u_hat, e, b, a2, lo, hi, warm_start: Multipliers | None):
-    """The fixed-budget sweeps on batch-major rows; returns ``(u, lam, lam_lo, lam_hi)``, batch-major.
-
-    Internally every batch axis is folded into the last (minor) axis, so each vector step of the
-    sweep runs over the whole batch with unit stride.
-    """
-    xp = namespace(u_hat, e)
-    n = u_hat.shape[-2]
-    batch = u_hat.shape[:-2]
     first, second = round_robin(n)
     rounds, half = first.shape
     m = n + n % 2
     nb = len(batch)
+    e, b, a2, valid = _pair_rows(barrier, positions, xp)
     usable = a2 > 0
     inv_a2 = to_minor(xp.where(usable, 1 / xp.where(usable, a2, 1), 0), nb, xp)  # [R, H, B]
     ex = to_minor(2 * e[..., 0], nb, xp)
     ey = to_minor(2 * e[..., 1], nb, xp)
     bm = to_minor(b, nb, xp)
-    boxed = lo is not None
+    boxed = barrier.boundary_points is not None
     if boxed:
+        lo, hi = _boxes(barrier, positions, xp)
         lo_x, lo_y = to_minor(lo[..., 0], nb, xp), to_minor(lo[..., 1], nb, xp)  # [N, B]
         hi_x, hi_y = to_minor(hi[..., 0], nb, xp), to_minor(hi[..., 1], nb, xp)
     omega = barrier.omega(n)
@@ -504,10 +428,13 @@ def _sweeps(barrier: Barrier, u_hat, e, b, a2, lo, hi, warm_start: Multipliers |
     # (m - 1) rotations per sweep bring the slots back to robot order.
     u = from_minor(xp.stack([ux[:n], uy[:n]], axis=1), batch, xp)
     lam = from_minor(xp.stack(lam, axis=0), batch, xp)  # [..., R, H]
-    if not boxed:
-        return u, lam, None, None
-    llx, lhx, lly, lhy = (from_minor(v, batch, xp) for v in box)
-    return u, lam, xp.stack([llx, lly], axis=-1), xp.stack([lhx, lhy], axis=-1)
+    if boxed:
+        llx, lhx, lly, lhy = (from_minor(v, batch, xp) for v in box)
+        lam_lo, lam_hi = xp.stack([llx, lly], axis=-1), xp.stack([lhx, lhy], axis=-1)
+    else:
+        lo = hi = lam_lo = lam_hi = None
+    info = _diagnostics(barrier, u, e, b, a2, valid, lam, lo, hi, lam_lo, lam_hi, xp)
+    return u, info._replace(multipliers=Multipliers(lam, lam_lo, lam_hi))
 
 
 def _diagnostics(barrier, u, e, b, a2, valid, lam, lo, hi, lam_lo, lam_hi, xp):

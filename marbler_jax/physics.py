@@ -231,9 +231,9 @@ def held_ticks(params: RobotariumParams, poses, velocities, ticks: int, stop_on_
     ends the env step there). The heading is advanced by rotating ``(cos, sin)`` by the constant
     angle ``dt * omega``, so the loop needs no trig; it agrees with :func:`integrate` to rounding.
 
-    Under JAX the tick loop runs on robot-major, batch-minor arrays ``[N, B]`` (also under
-    ``jax.vmap``, through :func:`marbler_jax._xp.vmap_in_place`), so every per-tick op is a
-    unit-stride vector op over the whole batch.
+    Under JAX the tick loop (``ticks > 1``) runs on robot-major, batch-minor arrays ``[N, B]``
+    (also under ``jax.vmap``, through :func:`marbler_jax._xp.vmap_in_place`), so every per-tick op
+    is a unit-stride vector op over the whole batch.
 
     Args:
         poses: ``[..., N, 3]``; velocities: ``[..., N, 2]`` (thresholded here); ticks: static.
@@ -244,7 +244,7 @@ def held_ticks(params: RobotariumParams, poses, velocities, ticks: int, stop_on_
     """
     xp, poses, vel, ticks = _prepare(params, poses, velocities, ticks, minimum=0)
     run = functools.partial(_held_ticks, params, ticks, bool(stop_on_violation))
-    if xp is not np:
+    if xp is not np and ticks > 1:  # a single tick is cheaper than the two transposes
         run = _jax_held_ticks(params, ticks, bool(stop_on_violation))
     return run(poses, vel)
 
