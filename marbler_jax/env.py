@@ -149,7 +149,7 @@ class MarblerEnv:
     def _reset_where(self, done, key, obs, state):
         """Replace the envs where ``done [...]`` by a fresh ``reset(key)``.
 
-        A batch of ``B >= 64`` envs resets only the finished ones when at most ``B // 8`` finished
+        A batch of ``B >= 64`` envs resets only the finished ones when at most ``B // 16`` finished
         this step (the usual case: episodes end at different steps): their keys are gathered, reset,
         and scattered back. More finished envs (e.g. a whole batch truncated at the same step) take
         the plain path that resets every env and selects. Both give the same result (to float
@@ -171,7 +171,7 @@ class MarblerEnv:
             put = lambda s, r: s.at[slots].set(r, mode="drop")
             return put(obs, reset_obs), jax.tree_util.tree_map(put, state, reset_state)
 
-        capacity = size // 8
+        capacity = size // 16
         if size < 64:
             obs, state = reset_all(None)
         else:
