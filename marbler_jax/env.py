@@ -159,6 +159,7 @@ class MarblerEnv:
         size = math.prod(batch)
         flat = jax.tree_util.tree_map(lambda a: a.reshape((size,) + a.shape[len(batch):]), (done, key, obs, state))
         done, key, obs, state = flat
+        capacity = size // 16
 
         def reset_all(_):
             reset_obs, reset_state = jax.vmap(self.reset)(key)
@@ -171,7 +172,6 @@ class MarblerEnv:
             put = lambda s, r: s.at[slots].set(r, mode="drop")
             return put(obs, reset_obs), jax.tree_util.tree_map(put, state, reset_state)
 
-        capacity = size // 16
         if size < 64:
             obs, state = reset_all(None)
         else:

@@ -243,10 +243,9 @@ def held_ticks(params: RobotariumParams, poses, velocities, ticks: int, stop_on_
         say whether a checked pre-tick pose violated, and ``distance`` is the path length driven [m].
     """
     xp, poses, vel, ticks = _prepare(params, poses, velocities, ticks, minimum=0)
-    run = functools.partial(_held_ticks, params, ticks, bool(stop_on_violation))
     if xp is not np and ticks > 1:  # a single tick is cheaper than the two transposes
-        run = _jax_held_ticks(params, ticks, bool(stop_on_violation))
-    return run(poses, vel)
+        return _jax_held_ticks(params, ticks, bool(stop_on_violation))(poses, vel)
+    return _held_ticks(params, ticks, bool(stop_on_violation), poses, vel)
 
 
 _BROADCAST_PAIRS_FROM = 18
@@ -271,8 +270,6 @@ def _held_ticks(params: RobotariumParams, ticks: int, stop_on_violation: bool, p
     cos_d, sin_d = xp.cos(delta), xp.sin(delta)
     false = xp.zeros(x.shape[1:], dtype=bool)
 
-    upper = np.triu(np.ones((n, n), bool), 1)[..., None]  # pairs i < j, [N, N, 1]
-
     def collide(cx, cy):
         """Any pair i < j with shifted centres within the collision diameter: ``[B]``.
 
@@ -280,6 +277,7 @@ def _held_ticks(params: RobotariumParams, ticks: int, stop_on_violation: bool, p
         whole ``[N, N, B]`` difference under a static upper-triangle mask (one fused reduction;
         faster from ~18 robots on, on the 2-core CPU, although it computes every pair twice)."""
         if n >= _BROADCAST_PAIRS_FROM:
+            upper = np.triu(np.ones((n, n), bool), 1)[..., None]  # pairs i < j, [N, N, 1]
             dx, dy = cx[:, None] - cx[None], cy[:, None] - cy[None]
             return xp.any((dx * dx + dy * dy <= diam2) & upper, axis=(0, 1))
         hit = false
