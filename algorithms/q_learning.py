@@ -15,7 +15,8 @@ module is everything else, as in EPyMARL:
 * **Learning.** ``train_steps`` gradient steps per update, each on ``batch_size`` sampled
   sequences: the recurrent agents are unrolled from a zero hidden state (reset again after every
   ``done``), ``Q_tot`` of the taken actions is regressed on
-  ``r + gamma * (1 - done) * Q_tot_target(next)`` with double-Q action selection (``double_q``),
+  ``r + gamma * (1 - done) * Q_tot_target(next)`` (or its TD(lambda) return along the sequence,
+  ``td_lambda > 0``, as pymarl2 does) with double-Q action selection (``double_q``),
   the team reward (the scenario's reported reward) and the target networks' mixer. Target networks
   are copied every ``target_update_interval`` gradient steps (``tau = 1``) or Polyak-averaged with
   ``tau`` after every step. Learning starts once the buffer holds ``learning_starts`` env steps.
@@ -68,6 +69,7 @@ class QConfig:
     target_update_interval: int = 200  # gradient steps between hard target copies (tau = 1)
     tau: float = 1.0                 # < 1: Polyak averaging after every gradient step
     double_q: bool = True
+    td_lambda: float = 0.0           # > 0: TD(lambda) targets along each sequence (0 = one-step)
     reward_norm: str = "none"        # none | scale (r / std) | standardise ((r - mean) / std, EPyMARL's)
     hidden: int = 128
     recurrent: bool = True
@@ -85,6 +87,8 @@ class QConfig:
             raise ValueError(f"num_steps must be >= 0 (0 = episode length), got {self.num_steps}")
         if self.optimizer not in OPTIMIZERS:
             raise ValueError(f"optimizer must be one of {sorted(OPTIMIZERS)}, got {self.optimizer!r}")
+        if not 0.0 <= self.td_lambda <= 1.0:
+            raise ValueError(f"td_lambda must be in [0, 1], got {self.td_lambda}")
         if not 0.0 < self.tau <= 1.0:
             raise ValueError(f"tau must be in (0, 1], got {self.tau}")
         if self.reward_norm not in REWARD_NORMS:
@@ -125,6 +129,23 @@ def normalise_rewards(cfg: QConfig, moments, reward):
 
 OPTIMIZERS = {"adam": optax.adam, "radam": optax.radam,
               "rmsprop": lambda lr: optax.rmsprop(lr, decay=0.99, eps=1e-5)}
+
+
+def lambda_returns(reward, done, next_value, gamma: float, lam: float):
+    """TD(lambda) targets ``[T, ...]`` along time-major sequences: ``G_t = r_t + gamma (1 - done_t)
+    ((1 - lam) V_{t+1} + lam G_{t+1})`` with ``V_{t+1} = next_value[t]`` and the last step
+    bootstrapped on ``next_value[-1]``. ``lam = 0`` is the one-step target; a ``done`` cuts both terms,
+    so a sequence that holds several episodes never bootstraps across an episode boundary."""
+    live = gamma * (1.0 - done.astype(jnp.float32))
+    if lam == 0.0:
+        return reward + live * next_value
+
+    def back(g_next, inputs):
+        r, live_t, v_next = inputs
+        g = r + live_t * ((1.0 - lam) * v_next + lam * g_next)
+        return g, g
+
+    return jax.lax.scan(back, next_value[-1], (reward, live, next_value), reverse=True)[1]
 
 
 def sequence_length(env, cfg: QConfig) -> int:
@@ -226,7 +247,8 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         state = global_state(data["obs"])                                  # [T+1, B, S]
         q_tot = mixer.apply(params["mixer"], chosen, state[:-1])
         next_tot = mixer.apply(target["mixer"], next_q, state[1:])
-        y = normalise_rewards(cfg, moments, data["reward"]) + cfg.gamma * (1.0 - data["done"].astype(jnp.float32)) * next_tot
+        y = lambda_returns(normalise_rewards(cfg, moments, data["reward"]), data["done"], next_tot,
+                           cfg.gamma, cfg.td_lambda)
         td = q_tot - jax.lax.stop_gradient(y)
         return jnp.mean(td ** 2)
 
@@ -297,4 +319,4 @@ def greedy_policy(env, cfg: QConfig, params) -> StatefulPolicy:
                           step=step)
 
 
-__all__ = ["QConfig", "make_train", "greedy_policy", "sequence_length", "OPTIMIZERS"]
+__all__ = ["QConfig", "make_train", "greedy_policy", "sequence_length", "lambda_returns", "OPTIMIZERS"]

@@ -30,7 +30,7 @@ REPO = Path(__file__).resolve().parents[1]
 RPS_VENV = REPO / ".rps-venv"
 
 # scenario -> (algorithm module, config, algo name, env overrides): every architecture we train
-pytestmark = pytest.mark.xdist_group("bundles")   # one worker builds the module's bundles once
+pytestmark = pytest.mark.xdist_group("bundles")   # one worker builds the bundles once
 
 UNTRAINED = {
     "predator_capture_prey": (vdn, vdn.VDNConfig(hidden=16), "vdn", {"control_period": 15}),
@@ -46,9 +46,12 @@ HEADING_OBS = {"discovery", "foraging", "rware"}
 FLOAT32_REPLAY = {"simple_navigation", "predator_capture_prey", "rware"}   # all bundles are replayed in float64
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def bundles(tmp_path_factory, ippo_simple_nav_run):
-    """A trained IPPO Simple Navigation bundle (via the CLI) and untrained bundles of the other scenarios."""
+    """A trained IPPO Simple Navigation bundle (via the CLI) and untrained bundles of the other scenarios.
+
+    Session-scoped: under xdist this module's tests reach their worker between other modules' tests, and
+    a module-scoped fixture would be torn down and built again (~60 s) at each such switch."""
     root = tmp_path_factory.mktemp("bundles")
     run = ippo_simple_nav_run
     assert cli(["export", str(run), "--out", str(root / "sn-policy"), "--bundle", str(root / "simple_navigation"),

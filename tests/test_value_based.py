@@ -79,6 +79,33 @@ def test_running_reward_moments_and_normalisation():
         vdn.VDNConfig(learning_starts=10**12).validate()
 
 
+def test_lambda_returns_match_the_recursive_definition_and_stop_at_episode_ends():
+    from algorithms.q_learning import lambda_returns
+
+    rng = np.random.default_rng(0)
+    T, B, gamma = 9, 3, 0.9
+    reward = rng.normal(size=(T, B)).astype(np.float32)
+    next_value = rng.normal(size=(T, B)).astype(np.float32)
+    done = np.zeros((T, B), bool)
+    done[3, 0] = done[8, 1] = True                     # a sequence holding two episodes; one ending last
+    for lam in (0.0, 0.6, 1.0):
+        expected = np.zeros((T, B))
+        g = next_value[-1].astype(np.float64)
+        for t in reversed(range(T)):
+            g = reward[t] + gamma * (1 - done[t]) * ((1 - lam) * next_value[t] + lam * g)
+            expected[t] = g
+        got = np.asarray(lambda_returns(jnp.asarray(reward), jnp.asarray(done), jnp.asarray(next_value), gamma, lam))
+        np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-5)
+    one_step = reward + gamma * (1 - done) * next_value
+    np.testing.assert_allclose(lambda_returns(reward, done, next_value, gamma, 0.0), one_step, rtol=1e-6)
+    # lambda = 1: Monte Carlo to the episode's end -- the step before a done ignores everything after it
+    mc = np.asarray(lambda_returns(reward, done, next_value, gamma, 1.0))
+    np.testing.assert_allclose(mc[3, 0], reward[3, 0], rtol=1e-6)
+    np.testing.assert_allclose(mc[2, 0], reward[2, 0] + gamma * reward[3, 0], rtol=1e-5)
+    with pytest.raises(ValueError, match="td_lambda must be in"):
+        vdn.VDNConfig(td_lambda=1.5).validate()
+
+
 def test_shared_and_per_agent_parameter_shapes():
     env = marbler_jax.make("material_transport")
     small = dict(total_timesteps=4 * 71, num_envs=4, buffer_size=8, batch_size=2, learning_starts=0, hidden=16)
@@ -124,18 +151,19 @@ FAST = dict(num_envs=16, buffer_size=500, learning_starts=2000, eps_decay_steps=
 
 
 def test_vdn_learns_simple_navigation():
-    _learns(vdn, vdn.VDNConfig(total_timesteps=100_000, train_steps=4, **FAST))
+    # TD(lambda) targets: greedy -23 after 60k steps (one-step targets: -31; random: -85)
+    _learns(vdn, vdn.VDNConfig(total_timesteps=60_000, train_steps=4, td_lambda=0.6, **FAST))
 
 
 def test_qmix_learns_simple_navigation():
     cfg = dict(FAST, lr=5e-4, eps_decay_steps=50_000)
-    _learns(qmix, qmix.QMIXConfig(total_timesteps=300_000, train_steps=8, target_update_interval=50,
+    _learns(qmix, qmix.QMIXConfig(total_timesteps=150_000, train_steps=8, target_update_interval=50,
                                   recurrent=False, **cfg))
 
 
 def test_qmix_ns_learns_simple_navigation():
     cfg = dict(FAST, lr=5e-4, eps_decay_steps=50_000)
-    _learns(qmix, qmix.QMIXNSConfig(total_timesteps=300_000, train_steps=8, target_update_interval=50,
+    _learns(qmix, qmix.QMIXNSConfig(total_timesteps=150_000, train_steps=8, target_update_interval=50,
                                     recurrent=False, **cfg))
 
 
