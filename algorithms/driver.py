@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 import marbler_jax
@@ -126,6 +127,9 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     if resume and manager.latest_step() is not None:
         done = int(manager.latest_step())
         runner = manager.restore(done, args=ocp.args.StandardRestore(runner))
+        # orbax commits the restored arrays to one device; as uncommitted arrays (like a fresh runner's)
+        # they go wherever the training program runs, e.g. on every device of a data-parallel learner
+        runner = jax.tree_util.tree_map(lambda x: jnp.asarray(np.asarray(x)), runner)
         if (out / "metrics.jsonl").exists():
             lines = [line for line in (out / "metrics.jsonl").read_text().splitlines()
                      if line.strip() and json.loads(line)["update"] <= done]
@@ -171,13 +175,16 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
                         board.add_scalar(f"train/{name}", value, row["env_steps"])
             board.flush()
         done += n
-        manager.save(done, args=ocp.args.StandardSave(runner))
+        # saved as host arrays: no device layout in the checkpoint, so a run trained on several devices
+        # (learner_devices) restores anywhere (evaluate, export, resume)
+        host = jax.tree_util.tree_map(np.asarray, runner)
+        manager.save(done, args=ocp.args.StandardSave(host))
         manager.wait_until_finished()
         recent = [json.loads(line)["return_mean"] for line in lines[-n:]]
         recent = [r for r in recent if r is not None]
         if recent and np.mean(recent) > best:
             best = float(np.mean(recent))
-            best_manager.save(done, args=ocp.args.StandardSave(runner["params"]), force=True)
+            best_manager.save(done, args=ocp.args.StandardSave(host["params"]), force=True)
             best_manager.wait_until_finished()
         atomic_write(out / "metrics.jsonl", "\n".join(lines) + "\n")
         plot_learning_curve(out / "metrics.jsonl", out / "learning_curve.png", f"{algo} on {scenario}")

@@ -20,6 +20,8 @@ module is everything else, as in EPyMARL:
   the team reward (the scenario's reported reward) and the target networks' mixer. Target networks
   are copied every ``target_update_interval`` gradient steps (``tau = 1``) or Polyak-averaged with
   ``tau`` after every step. Learning starts once the buffer holds ``learning_starts`` env steps.
+  ``learner_devices > 1`` splits each gradient step's batch over that many devices
+  (:mod:`algorithms.data_parallel`).
 
 Choices (documented where EPyMARL differs): the end of an episode by MARBLER's step limit is
 treated as terminal (the observations carry no time, and MARBLER returns ``done`` there);
@@ -42,6 +44,7 @@ import optax
 
 from algorithms import buffer as episode_buffer
 from algorithms.common import episode_info, rollout_metrics
+from algorithms.data_parallel import split_batch
 from algorithms.ippo import global_state
 from algorithms.networks import QAgent, apply_agents, init_agents, with_agent_ids
 from marbler_jax.rollout import StatefulPolicy
@@ -75,10 +78,11 @@ class QConfig:
     recurrent: bool = True
     shared: bool = True
     agent_ids: bool = True
+    learner_devices: int = 1         # > 1: each gradient step's batch split over this many devices
 
     def validate(self) -> None:
         for name in ("total_timesteps", "num_envs", "buffer_size", "batch_size", "train_steps", "hidden",
-                     "eps_decay_steps", "target_update_interval"):
+                     "eps_decay_steps", "target_update_interval", "learner_devices"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if not 0 <= self.learning_starts < 2**31:
@@ -93,6 +97,8 @@ class QConfig:
             raise ValueError(f"tau must be in (0, 1], got {self.tau}")
         if self.reward_norm not in REWARD_NORMS:
             raise ValueError(f"reward_norm must be one of {list(REWARD_NORMS)}, got {self.reward_norm!r}")
+        if self.batch_size % self.learner_devices:
+            raise ValueError(f"batch_size ({self.batch_size}) must be divisible by learner_devices ({self.learner_devices})")
         if self.num_envs > self.buffer_size:
             raise ValueError(f"num_envs ({self.num_envs}) must not exceed buffer_size ({self.buffer_size})")
 
@@ -252,11 +258,13 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         td = q_tot - jax.lax.stop_gradient(y)
         return jnp.mean(td ** 2)
 
+    loss_and_grad = split_batch(jax.value_and_grad(loss_fn), cfg.learner_devices, batch_argnum=2)
+
     def learn(moments, carry, key):
         """One gradient step; ``moments`` (the reward statistics) stay fixed within an update."""
         params, target, opt_state, buffer, grad_steps = carry
         batch = episode_buffer.sample(buffer, key, cfg.batch_size)
-        loss, grads = jax.value_and_grad(loss_fn)(params, target, batch, moments)
+        loss, grads = loss_and_grad(params, target, batch, moments)
         updates, opt_state = tx.update(grads, opt_state, params)
         params = optax.apply_updates(params, updates)
         grad_steps = grad_steps + 1

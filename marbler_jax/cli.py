@@ -169,6 +169,10 @@ def _train(args) -> int:
     env_overrides, hp, steps = preset(args.preset, args.scenario, args.algo)
     env_overrides.update(parse_overrides(args.set))
     hp.update(parse_overrides(args.hp))
+    if isinstance(hp.get("learner_devices"), int):
+        from algorithms.data_parallel import use_cpu_devices
+
+        use_cpu_devices(hp["learner_devices"])      # before JAX first runs
     total = int(float(args.total_steps)) if args.total_steps else steps
     if args.hang_seconds < 0:
         raise ValueError(f"--hang-seconds must be >= 0 (0 = off), got {args.hang_seconds}")

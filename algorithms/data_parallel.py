@@ -1,0 +1,58 @@
+"""Data-parallel gradients: one gradient step's batch split over several devices of this host.
+
+``split_batch(grad_fn, devices, batch_argnum)`` wraps ``grad_fn(*args) -> (loss, grads)`` so that each
+of ``devices`` devices takes an equal share of the batch argument (its leading axis), computes the
+loss and gradient of its share, and the shares are averaged (``pmean``). For a loss that is a mean
+over equally weighted batch rows this is the whole batch's loss and gradient, equal to one device's
+up to float rounding. Everything else in the jitted program stays replicated on every device.
+
+On a CPU, JAX sees one device unless it is told otherwise before it first runs:
+``use_cpu_devices(n)`` (what ``marbler-jax train`` calls for ``--hp learner_devices=n``) splits the
+host into ``n`` CPU devices, each running its share on its own thread. On the 2-core development CPU
+this made a VDN ``fast`` gradient step (GRU 64, 32 sequences x 82 steps x 4 agents) 1.4x faster
+(~20 vs ~29 ms) -- the single-device step leaves most of the second core idle.
+"""
+from __future__ import annotations
+
+import jax
+import numpy as np
+from jax.sharding import Mesh, PartitionSpec
+
+AXIS = "batch"
+
+
+def use_cpu_devices(n: int) -> None:
+    """Ask JAX for ``n`` CPU devices; must run before JAX first computes anything (else a no-op that
+    :func:`split_batch` then reports)."""
+    if n > 1 and jax.config.jax_num_cpu_devices < n:
+        try:
+            jax.config.update("jax_num_cpu_devices", n)
+        except RuntimeError:        # the backend already started: split_batch says what to do
+            pass
+
+
+def split_batch(grad_fn, devices: int, batch_argnum: int):
+    """``grad_fn`` with its ``batch_argnum``-th argument (a pytree of ``[B, ...]`` arrays, ``B``
+    divisible by ``devices``) split over the first ``devices`` devices; returns ``grad_fn`` unchanged
+    for ``devices == 1``."""
+    if devices == 1:
+        return grad_fn
+    available = jax.devices()
+    if len(available) < devices:
+        raise ValueError(
+            f"learner_devices={devices} needs {devices} devices but JAX has {len(available)} "
+            f"({available[0].platform}); on a CPU call algorithms.data_parallel.use_cpu_devices({devices}) "
+            f"(or set jax.config 'jax_num_cpu_devices') before JAX first runs -- marbler-jax train does this")
+    mesh = Mesh(np.array(available[:devices]), (AXIS,))
+
+    def share(*args):
+        return jax.lax.pmean(grad_fn(*args), AXIS)
+
+    def wrapped(*args):
+        specs = tuple(PartitionSpec(AXIS) if i == batch_argnum else PartitionSpec() for i in range(len(args)))
+        return jax.shard_map(share, mesh=mesh, in_specs=specs, out_specs=PartitionSpec(), check_vma=False)(*args)
+
+    return wrapped
+
+
+__all__ = ["split_batch", "use_cpu_devices"]
