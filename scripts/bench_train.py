@@ -9,11 +9,13 @@ and prints a Markdown table.
     python scripts/bench_train.py --out bench_out/train.json
     python scripts/bench_train.py --algos vdn --presets fast --scenario predator_capture_prey
     python scripts/bench_train.py --algos vdn qmix --presets fast --seeds 1 5   # seeds vmapped in one program
+    python scripts/bench_train.py --algos vdn qmix --presets fast --learner-devices 1 2   # data-parallel steps
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import time
 from pathlib import Path
@@ -22,14 +24,18 @@ import jax
 from tqdm.auto import tqdm
 
 import marbler_jax
+from algorithms.data_parallel import use_cpu_devices
 from algorithms.driver import ALGORITHMS, build_config
 from algorithms.presets import preset
 
 
-def bench(scenario: str, algo: str, preset_name: str, updates: int, repeats: int, seeds: int = 1) -> dict:
+def bench(scenario: str, algo: str, preset_name: str, updates: int, repeats: int, seeds: int = 1,
+          learner_devices: int = 1) -> dict:
     env_overrides, hp, _ = preset(preset_name, scenario, algo)
     if "learning_starts" in ALGORITHMS[algo][0].__dataclass_fields__:
         hp["learning_starts"] = 0
+    if learner_devices > 1:
+        hp["learner_devices"] = learner_devices
     env = marbler_jax.make(scenario, **env_overrides)
     cfg = build_config(algo, dict(hp, total_timesteps=10**9))
     trainer = ALGORITHMS[algo][1](env, cfg)
@@ -45,7 +51,8 @@ def bench(scenario: str, algo: str, preset_name: str, updates: int, repeats: int
         jax.block_until_ready(run(runner))
         best = min(best, time.perf_counter() - t0)
     steps = seeds * updates * trainer.steps_per_update
-    return dict(scenario=scenario, algo=algo, preset=preset_name, seeds=seeds, env=env_overrides, hp=hp, updates=updates,
+    return dict(scenario=scenario, algo=algo, preset=preset_name, seeds=seeds, learner_devices=learner_devices,
+                env=env_overrides, hp=hp, updates=updates,
                 env_steps=steps, seconds=best, compile_seconds=compile_s, env_steps_per_s=steps / best)
 
 
@@ -57,22 +64,27 @@ def main() -> None:
     parser.add_argument("--updates", type=int, default=5, help="updates per timed chunk")
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--seeds", type=int, nargs="+", default=[1], help="seed counts (vmapped in one program)")
+    parser.add_argument("--learner-devices", type=int, nargs="+", default=[1],
+                        help="value-based learners: devices each gradient step's batch is split over (CPU devices)")
     parser.add_argument("--out", default="bench_out/train.json")
     args = parser.parse_args()
+    use_cpu_devices(max(args.learner_devices))
     rows = []
-    combos = [(a, p, k) for a in args.algos for p in args.presets for k in args.seeds]
-    for algo, name, seeds in tqdm(combos, desc="bench_train", unit="config"):
-        rows.append(bench(args.scenario, algo, name, args.updates, args.repeats, seeds))
-        tqdm.write(f"{algo} {name} x{seeds} seeds: {rows[-1]['env_steps_per_s']:,.0f} env-steps/s")
-    result = dict(machine=platform.processor() or platform.machine(), cpus=jax.device_count(),
+    combos = [(a, p, k, d) for a in args.algos for p in args.presets for k in args.seeds for d in args.learner_devices
+              if d == 1 or "learner_devices" in ALGORITHMS[a][0].__dataclass_fields__]
+    for algo, name, seeds, devices in tqdm(combos, desc="bench_train", unit="config"):
+        rows.append(bench(args.scenario, algo, name, args.updates, args.repeats, seeds, devices))
+        tqdm.write(f"{algo} {name} x{seeds} seeds, {devices} learner device(s): "
+                   f"{rows[-1]['env_steps_per_s']:,.0f} env-steps/s")
+    result = dict(machine=platform.processor() or platform.machine(), cpus=os.cpu_count(), devices=jax.device_count(),
                   backend=jax.default_backend(), jax=jax.__version__, rows=rows)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(result, indent=2))
     print(f"\n{args.scenario}, {jax.default_backend()} backend\n")
-    print("| algorithm | preset | seeds | env steps / update (all seeds) | env-steps/s incl. learning | compile s |")
-    print("|---|---|---:|---:|---:|---:|")
+    print("| algorithm | preset | seeds | learner devices | env steps / update (all seeds) | env-steps/s incl. learning | compile s |")
+    print("|---|---|---:|---:|---:|---:|---:|")
     for r in rows:
-        print(f"| {r['algo']} | {r['preset']} | {r['seeds']} | {r['env_steps'] // r['updates']:,} | "
+        print(f"| {r['algo']} | {r['preset']} | {r['seeds']} | {r['learner_devices']} | {r['env_steps'] // r['updates']:,} | "
               f"{r['env_steps_per_s']:,.0f} | {r['compile_seconds']:.1f} |")
     print(f"\nwritten: {args.out}")
 
