@@ -1,6 +1,7 @@
 """Run MARBLER's Table II with our algorithms: train + evaluate every (scenario, algorithm) cell.
 
     python scripts/paper_table.py --total-steps 2e6 --seeds 1 --runs runs/table --out bench_out/paper_table.json
+    python scripts/paper_table.py --algos qmix_ns --learner-devices 2 --runs runs/table-v2 --out bench_out/t.json
 
 For every cell it runs ``marbler-jax train --scenario S --algo A --preset P`` into ``RUNS/S-A`` and
 ``marbler-jax evaluate RUNS/S-A --episodes 100`` (greedy, best checkpoint), each in its own process,
@@ -22,6 +23,7 @@ from algorithms.evaluate import PAPER  # noqa: E402
 
 SCENARIOS = ("predator_capture_prey", "warehouse", "material_transport", "arctic_transport")
 ALGOS = ("mappo", "vdn", "qmix", "qmix_ns")
+VALUE_BASED = ("vdn", "qmix", "qmix_ns")    # the algorithms with data-parallel gradient steps
 ROWS = ("reward", "steps", "prey_left", "material_left", "collisions", "out_of_bounds")
 
 
@@ -35,6 +37,8 @@ def run_cell(scenario: str, algo: str, args) -> dict:
     train = cli + ["train", "--scenario", scenario, "--algo", algo, "--preset", args.preset,
                    "--total-steps", str(args.total_steps), "--seeds", str(args.seeds), "--out", str(run),
                    "--no-progress"]
+    if args.learner_devices > 1 and algo in VALUE_BASED:
+        train += ["--hp", f"learner_devices={args.learner_devices}"]
     if (run / "config.json").exists() and not (run / "params.npz").exists():
         train.append("--resume")
     t0 = time.perf_counter()
@@ -96,6 +100,8 @@ def main() -> None:
     parser.add_argument("--total-steps", type=float, default=2e6)
     parser.add_argument("--seeds", type=int, default=1)
     parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--learner-devices", type=int, default=1,
+                        help="VDN/QMIX/QMIX_NS: split each gradient step over this many CPU devices")
     parser.add_argument("--runs", default="runs/table")
     parser.add_argument("--out", default="bench_out/paper_table.json")
     args = parser.parse_args()

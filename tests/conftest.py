@@ -84,25 +84,38 @@ def pytest_terminal_summary(terminalreporter):
         tr.write_line(f"{name:28s} {n:3d} {cases:5d} {match:6.1%} {worst:9.2e} {p99:9.2e} {feas:8.1%}")
 
 
-@pytest.fixture(scope="session")
-def ippo_simple_nav_run(tmp_path_factory):
-    """One IPPO run on Simple Navigation (150k steps, default env: safe CBF, control every tick), trained once
-    per session through the training driver; used by the learning test and the Robotarium bundle test.
-
-    Under pytest-xdist the workers share it: the first to need it trains it under a file lock in the
-    session's common temp folder, the others wait for the lock and reuse the finished run."""
+def build_once(tmp_path_factory, name: str, build) -> Path:
+    """``build(folder)`` once per test session, shared by the xdist workers: the first worker to need
+    ``name`` builds it under a file lock in the session's common temp folder (a ``.done`` marker is
+    written last); the others wait for the lock and reuse the finished folder. (pytest-xdist's
+    ``loadgroup`` cannot keep a module's tests on one worker under pytest 9, so a session fixture
+    would otherwise be built once per worker.)"""
     import fcntl
-
-    from algorithms.driver import train
+    import shutil
 
     shared = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):
         shared = shared.parent          # common to every worker of this session
-    run = shared / "ippo-sn" / "run"
-    run.parent.mkdir(exist_ok=True)
-    with open(shared / "ippo-sn.lock", "w") as lock:
+    folder = shared / name
+    with open(shared / f"{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        if not (run / "evaluation.json").exists():     # written last by the driver
-            train("simple_navigation", "ippo", 150_000, 1, run, hp={"num_envs": 64, "num_steps": 64, "lr": 1e-3},
-                  eval_episodes=256, progress=False, log=lambda *a, **k: None)
-    return run
+        if not (folder / ".done").exists():
+            shutil.rmtree(folder, ignore_errors=True)     # what a failed attempt left
+            folder.mkdir()
+            build(folder)
+            (folder / ".done").touch()
+    return folder
+
+
+@pytest.fixture(scope="session")
+def ippo_simple_nav_run(tmp_path_factory):
+    """One IPPO run on Simple Navigation (150k steps, default env: safe CBF, control every tick), trained once
+    per session (:func:`build_once`) through the training driver; used by the learning test and the
+    Robotarium bundle test."""
+    from algorithms.driver import train
+
+    def build(folder):
+        train("simple_navigation", "ippo", 150_000, 1, folder / "run", hp={"num_envs": 64, "num_steps": 64, "lr": 1e-3},
+              eval_episodes=256, progress=False, log=lambda *a, **k: None)
+
+    return build_once(tmp_path_factory, "ippo-sn", build) / "run"

@@ -25,13 +25,12 @@ from marbler_jax.cli import main as cli
 from marbler_jax.deploy.bundle import write_bundle
 from marbler_jax.deploy.flatten import check_bundle_folder, flatten_module
 from marbler_jax.deploy.replay import replay_trace
+from tests.conftest import build_once
 
 REPO = Path(__file__).resolve().parents[1]
 RPS_VENV = REPO / ".rps-venv"
 
 # scenario -> (algorithm module, config, algo name, env overrides): every architecture we train
-pytestmark = pytest.mark.xdist_group("bundles")   # one worker builds the bundles once
-
 UNTRAINED = {
     "predator_capture_prey": (vdn, vdn.VDNConfig(hidden=16), "vdn", {"control_period": 15}),
     "warehouse": (qmix, qmix.QMIXNSConfig(hidden=16), "qmix_ns", {}),
@@ -48,22 +47,19 @@ FLOAT32_REPLAY = {"simple_navigation", "predator_capture_prey", "rware"}   # all
 
 @pytest.fixture(scope="session")
 def bundles(tmp_path_factory, ippo_simple_nav_run):
-    """A trained IPPO Simple Navigation bundle (via the CLI) and untrained bundles of the other scenarios.
+    """A trained IPPO Simple Navigation bundle (via the CLI) and untrained bundles of the other scenarios,
+    built once per session and shared by the xdist workers (``build_once``)."""
+    def build(root):
+        assert cli(["export", str(ippo_simple_nav_run), "--out", str(root / "sn-policy"), "--bundle",
+                    str(root / "simple_navigation"), "--checkpoint", "final", "--episodes", "2"]) == 0
+        for name, (module, cfg, algo, overrides) in UNTRAINED.items():
+            env = marbler_jax.make(name, **overrides, **SHORT)
+            params = jax.jit(module.make_train(env, cfg).init)(jax.random.PRNGKey(1))["params"]
+            export_params(algo, cfg, params, env, root / f"{name}-policy")
+            write_bundle(env, root / f"{name}-policy", root / name, algo, episodes=1, seed=3)
 
-    Session-scoped: under xdist this module's tests reach their worker between other modules' tests, and
-    a module-scoped fixture would be torn down and built again (~60 s) at each such switch."""
-    root = tmp_path_factory.mktemp("bundles")
-    run = ippo_simple_nav_run
-    assert cli(["export", str(run), "--out", str(root / "sn-policy"), "--bundle", str(root / "simple_navigation"),
-                "--checkpoint", "final", "--episodes", "2"]) == 0
-    out = {"simple_navigation": root / "simple_navigation"}
-    for name, (module, cfg, algo, overrides) in UNTRAINED.items():
-        env = marbler_jax.make(name, **overrides, **SHORT)
-        params = jax.jit(module.make_train(env, cfg).init)(jax.random.PRNGKey(1))["params"]
-        export_params(algo, cfg, params, env, root / f"{name}-policy")
-        write_bundle(env, root / f"{name}-policy", root / name, algo, episodes=1, seed=3)
-        out[name] = root / name
-    return out
+    root = build_once(tmp_path_factory, "bundles", build)
+    return {name: root / name for name in ("simple_navigation", *UNTRAINED)}
 
 
 def test_bundles_are_flat_jax_free_and_carry_the_training_config(bundles):

@@ -5,7 +5,7 @@ import jax
 import numpy as np
 
 import marbler_jax
-from algorithms.ippo import IPPOConfig, greedy_policy, make_train
+from algorithms.ippo import IPPOConfig, make_train
 from marbler_jax.rollout import episode_stats, make_rollout
 
 
