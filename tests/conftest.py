@@ -119,3 +119,19 @@ def ippo_simple_nav_run(tmp_path_factory):
               eval_episodes=256, progress=False, log=lambda *a, **k: None)
 
     return build_once(tmp_path_factory, "ippo-sn", build) / "run"
+
+
+# Modules whose tests train or compile whole programs (30-95 s each on the 2-core CI machine), in the
+# order to start them. pytest-xdist hands the tests out in collection order, so running these first
+# and the many short tests after them keeps both workers busy to the end instead of leaving one long
+# test alone on one worker.
+LONG_FIRST = ("test_data_parallel", "test_value_based", "test_training_driver", "test_cli", "test_examples",
+              "test_ippo", "test_bundle")
+
+
+def pytest_collection_modifyitems(config, items):
+    def rank(item):
+        module = item.module.__name__.rsplit(".", 1)[-1] if getattr(item, "module", None) else ""
+        return LONG_FIRST.index(module) if module in LONG_FIRST else len(LONG_FIRST)
+
+    items.sort(key=rank)    # stable: the order within a module is kept
