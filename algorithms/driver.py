@@ -17,7 +17,6 @@ import time
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 import marbler_jax
@@ -41,6 +40,11 @@ def atomic_write(path: Path, data: bytes | str) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_bytes(data.encode() if isinstance(data, str) else data)
     os.replace(tmp, path)
+
+
+def has_setting(algo: str, name: str) -> bool:
+    """Whether ``algo``'s config has the setting ``name`` (e.g. ``learner_devices``: value-based only)."""
+    return name in {f.name for f in dataclasses.fields(ALGORITHMS[algo][0])}
 
 
 def build_config(algo: str, overrides: dict):
@@ -126,10 +130,9 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     lines, done = [], 0
     if resume and manager.latest_step() is not None:
         done = int(manager.latest_step())
-        runner = manager.restore(done, args=ocp.args.StandardRestore(runner))
-        # orbax commits the restored arrays to one device; as uncommitted arrays (like a fresh runner's)
-        # they go wherever the training program runs, e.g. on every device of a data-parallel learner
-        runner = jax.tree_util.tree_map(lambda x: jnp.asarray(np.asarray(x)), runner)
+        # as host arrays (orbax would commit them to one device) they go wherever the training program
+        # runs, e.g. on every device of a data-parallel learner, like a fresh runner's
+        runner = jax.tree_util.tree_map(np.asarray, manager.restore(done, args=ocp.args.StandardRestore(runner)))
         if (out / "metrics.jsonl").exists():
             lines = [line for line in (out / "metrics.jsonl").read_text().splitlines()
                      if line.strip() and json.loads(line)["update"] <= done]

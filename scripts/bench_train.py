@@ -25,14 +25,14 @@ from tqdm.auto import tqdm
 
 import marbler_jax
 from algorithms.data_parallel import use_cpu_devices
-from algorithms.driver import ALGORITHMS, build_config
+from algorithms.driver import ALGORITHMS, build_config, has_setting
 from algorithms.presets import preset
 
 
 def bench(scenario: str, algo: str, preset_name: str, updates: int, repeats: int, seeds: int = 1,
           learner_devices: int = 1) -> dict:
     env_overrides, hp, _ = preset(preset_name, scenario, algo)
-    if "learning_starts" in ALGORITHMS[algo][0].__dataclass_fields__:
+    if has_setting(algo, "learning_starts"):
         hp["learning_starts"] = 0
     if learner_devices > 1:
         hp["learner_devices"] = learner_devices
@@ -71,7 +71,7 @@ def main() -> None:
     use_cpu_devices(max(args.learner_devices))
     rows = []
     combos = [(a, p, k, d) for a in args.algos for p in args.presets for k in args.seeds for d in args.learner_devices
-              if d == 1 or "learner_devices" in ALGORITHMS[a][0].__dataclass_fields__]
+              if d == 1 or has_setting(a, "learner_devices")]
     for algo, name, seeds, devices in tqdm(combos, desc="bench_train", unit="config"):
         rows.append(bench(args.scenario, algo, name, args.updates, args.repeats, seeds, devices))
         tqdm.write(f"{algo} {name} x{seeds} seeds, {devices} learner device(s): "

@@ -19,11 +19,11 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from algorithms.driver import has_setting  # noqa: E402
 from algorithms.evaluate import PAPER  # noqa: E402
 
 SCENARIOS = ("predator_capture_prey", "warehouse", "material_transport", "arctic_transport")
 ALGOS = ("mappo", "vdn", "qmix", "qmix_ns")
-VALUE_BASED = ("vdn", "qmix", "qmix_ns")    # the algorithms with data-parallel gradient steps
 ROWS = ("reward", "steps", "prey_left", "material_left", "collisions", "out_of_bounds")
 
 
@@ -37,7 +37,7 @@ def run_cell(scenario: str, algo: str, args) -> dict:
     train = cli + ["train", "--scenario", scenario, "--algo", algo, "--preset", args.preset,
                    "--total-steps", str(args.total_steps), "--seeds", str(args.seeds), "--out", str(run),
                    "--no-progress"]
-    if args.learner_devices > 1 and algo in VALUE_BASED:
+    if args.learner_devices > 1 and has_setting(algo, "learner_devices"):
         train += ["--hp", f"learner_devices={args.learner_devices}"]
     if (run / "config.json").exists() and not (run / "params.npz").exists():
         train.append("--resume")

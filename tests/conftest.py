@@ -131,7 +131,7 @@ LONG_FIRST = ("test_data_parallel", "test_value_based", "test_training_driver", 
 
 def pytest_collection_modifyitems(config, items):
     def rank(item):
-        module = item.module.__name__.rsplit(".", 1)[-1] if getattr(item, "module", None) else ""
+        module = item.path.stem
         return LONG_FIRST.index(module) if module in LONG_FIRST else len(LONG_FIRST)
 
     items.sort(key=rank)    # stable: the order within a module is kept
