@@ -182,17 +182,22 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         """One step: ``hidden [..., N, H]``, ``obs [..., N, D]``, ``reset [..., N, 1]``."""
         return apply_agents(agent, agent_params, hidden, agent_inputs(cfg, obs), reset, shared=cfg.shared)
 
-    def q_sequence(agent_params, obs, resets):
-        """Q-values ``[T, B, N, A]`` along sequences ``obs [T, B, N, D]`` (``resets [T, B]``)."""
+    def q_sequences(agent_params, target_params, obs, resets):
+        """Online and target Q-values, each ``[T, B, N, A]``, along sequences ``obs [T, B, N, D]``
+        (``resets [T, B]``). Both networks advance in one scan: half the loop steps of two unrolls,
+        and each step's two small GRU matmuls run back to back."""
         reset = jnp.broadcast_to(resets[..., None, None], resets.shape + (n_agents, 1))
         hidden = agent.initial_hidden(obs.shape[1:3])
         if not cfg.recurrent:          # no memory: all steps in one batched call
-            return q_values(agent_params, jnp.broadcast_to(hidden, obs.shape[:1] + hidden.shape), obs, reset)[1]
+            hidden = jnp.broadcast_to(hidden, obs.shape[:1] + hidden.shape)
+            return q_values(agent_params, hidden, obs, reset)[1], q_values(target_params, hidden, obs, reset)[1]
 
-        def step(hidden, inputs):
-            return q_values(agent_params, hidden, *inputs)
+        def step(hiddens, inputs):
+            h_online, q_online = q_values(agent_params, hiddens[0], *inputs)
+            h_target, q_target = q_values(target_params, hiddens[1], *inputs)
+            return (h_online, h_target), (q_online, q_target)
 
-        return jax.lax.scan(step, hidden, (obs, reset))[1]
+        return jax.lax.scan(step, (hidden, hidden), (obs, reset))[1]
 
     def epsilon(env_steps):
         frac = jnp.clip(env_steps / cfg.eps_decay_steps, 0.0, 1.0)
@@ -242,8 +247,7 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
     def loss_fn(params, target, batch, moments):
         data = jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), batch)   # time-major
         resets = jnp.concatenate([jnp.ones_like(data["done"][:1]), data["done"]], 0)
-        q = q_sequence(params["agent"], data["obs"], resets)              # [T+1, B, N, A]
-        q_target = q_sequence(target["agent"], data["obs"], resets)
+        q, q_target = q_sequences(params["agent"], target["agent"], data["obs"], resets)   # [T+1, B, N, A]
         chosen = jnp.take_along_axis(q[:-1], data["actions"][..., None], -1)[..., 0]
         if cfg.double_q:
             best = jnp.argmax(jax.lax.stop_gradient(q[1:]), -1)
