@@ -9,7 +9,9 @@ and ``k`` sweeps warm-started from the previous refresh's ``k``-sweep multiplier
 with ``cbf_warm_start``). The robots follow the reference, so every solve sees the same trajectory.
 Reported: the share of refreshes whose ``k``-sweep output matches the reference within the golden
 tolerance (every component within 5e-4 + 1e-3 max|u_ref|), and the largest constraint violation
-[m/s] of the ``k``-sweep outputs. Then env-steps/s of ``jit(scan(vmap(env.step)))`` at batch 4096 for
+[m/s] of the ``k``-sweep outputs. ``--drift SCENARIO`` adds the closed loop: random-policy episodes
+run with ``k`` sweeps and with 400, and the share of envs whose robots end up > 1 mm / > 1 cm apart
+(and whose ``done`` differs) within ``--drift-steps`` steps. Then env-steps/s of ``jit(scan(vmap(env.step)))`` at batch 4096 for
 the sweep budgets the env uses by default (:func:`marbler_jax.step_rules.default_cbf_iterations`).
 """
 from __future__ import annotations
@@ -94,6 +96,30 @@ def accuracy(n: int, period: int, sweeps, n_envs: int, steps: int, seed: int = 0
             for i, k in enumerate(sweeps)}
 
 
+def closed_loop_drift(name: str, period: int, sweeps, batch: int = 512, steps: int = 40):
+    """``{k: (share of envs > 1 mm off, > 1 cm off, with a different done)}`` against 400 sweeps."""
+    def rollout(env):
+        def run(key):
+            _, state = jax.vmap(env.reset)(jax.random.split(key, batch))
+
+            def body(state, k):
+                k_act, k_step = jax.random.split(k)
+                actions = jax.random.randint(k_act, (batch, env.num_agents), 0, env.num_actions)
+                _, state, _, done, _ = jax.vmap(env.step_env)(jax.random.split(k_step, batch), state, actions)
+                return state, (state.poses[..., :2], done)
+            return jax.lax.scan(body, state, jax.random.split(key, steps))[1]
+        return jax.jit(run)(jax.random.PRNGKey(1))
+
+    exact, exact_done = rollout(marbler_jax.make(name, control_period=period, cbf_iterations=400))
+    out = {}
+    for k in sweeps:
+        poses, done = rollout(marbler_jax.make(name, control_period=period, cbf_iterations=k))
+        drift = np.asarray(jnp.abs(poses - exact).max(axis=(0, 2, 3)))
+        out[int(k)] = dict(envs_over_1mm=float((drift > 1e-3).mean()), envs_over_1cm=float((drift > 1e-2).mean()),
+                           envs_done_differs=float(np.asarray(done != exact_done).any(0).mean()))
+    return out
+
+
 def throughput(env, batch: int = 4096, steps: int = 10, repeats: int = 3):
     import time
 
@@ -124,11 +150,15 @@ def main(argv=None):
     parser.add_argument("--no-throughput", action="store_true")
     parser.add_argument("--ns", type=int, nargs="+", default=[4, 8, 12, 20])
     parser.add_argument("--periods", type=int, nargs="+", default=[15, 1])
+    parser.add_argument("--sweeps", type=int, nargs="+", default=[2, 4, 6, 8, 12, 16, 24, 32])
+    parser.add_argument("--drift", metavar="SCENARIO", help="also measure closed-loop drift on this scenario")
+    parser.add_argument("--drift-steps", type=int, default=40)
+    parser.add_argument("--no-accuracy", action="store_true", help="skip the per-refresh accuracy grid")
     args = parser.parse_args(argv)
     ns = [4] if args.quick else args.ns
-    sweeps = [2, 4] if args.quick else [2, 4, 6, 8, 12, 16, 24, 32]
+    sweeps = [2, 4] if args.quick else args.sweeps
     rows = []
-    for period in args.periods:
+    for period in [] if args.no_accuracy else args.periods:
         for n in ns:
             n_envs = 8 if args.quick else (256 if period == 15 else 48) // (1 + n // 8)
             steps = 5 if args.quick else 60
@@ -136,6 +166,13 @@ def main(argv=None):
                 rows.append(dict(n=n, control_period=period, sweeps=k, envs=n_envs, steps=steps, **r))
                 print(f"N={n:2d} period={period:2d} sweeps={k:2d}: cold {r['cold_match']:.4f} warm {r['warm_match']:.4f} "
                       f"(max violation cold {r['cold_max_violation']:.2e}, warm {r['warm_max_violation']:.2e})", flush=True)
+    drift = []
+    if args.drift:
+        for period in args.periods:
+            for k, r in closed_loop_drift(args.drift, period, sweeps, steps=args.drift_steps).items():
+                drift.append(dict(scenario=args.drift, control_period=period, sweeps=k, steps=args.drift_steps, **r))
+                print(f"{args.drift} period={period:2d} sweeps={k:2d}: envs > 1 mm {r['envs_over_1mm']:.3f}, "
+                      f"> 1 cm {r['envs_over_1cm']:.3f}, done differs {r['envs_done_differs']:.3f}", flush=True)
     speed = []
     if not args.no_throughput:
         for period in (15, 1):
@@ -149,7 +186,7 @@ def main(argv=None):
                     print(f"throughput N={n:2d} period={period:2d} warm={warm!s:5s} sweeps={env.barrier.iterations}: "
                           f"{sps:,.0f} env-steps/s", flush=True)
     result = dict(date=str(date.today()), jax=jax.__version__,
-                  machine=f"{platform.machine()}, {jax.default_backend()}", accuracy=rows, throughput=speed)
+                  machine=f"{platform.machine()}, {jax.default_backend()}", accuracy=rows, drift=drift, throughput=speed)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=2))
