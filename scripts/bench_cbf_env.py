@@ -31,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import marbler_jax  # noqa: E402
 from marbler_jax import cbf, controllers, physics  # noqa: E402
 from marbler_jax.step_rules import finish_step  # noqa: E402
+from marbler_jax.rollout import random_actions  # noqa: E402
 
 
 def make_env(n: int, period: int, **overrides):
@@ -104,7 +105,7 @@ def closed_loop_drift(name: str, period: int, sweeps, batch: int = 512, steps: i
 
             def body(state, k):
                 k_act, k_step = jax.random.split(k)
-                actions = jax.random.randint(k_act, (batch, env.num_agents), 0, env.num_actions)
+                actions = random_actions(env, k_act, (batch,))
                 _, state, _, done, _ = jax.vmap(env.step_env)(jax.random.split(k_step, batch), state, actions)
                 return state, (state.poses[..., :2], done)
             return jax.lax.scan(body, state, jax.random.split(key, steps))[1]

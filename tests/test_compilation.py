@@ -33,11 +33,11 @@ def test_env_step_and_reset_compile_once_without_host_callbacks(name, period):
     reset = jax.jit(jax.vmap(env.reset))
     step = jax.jit(jax.vmap(env.step))
     key = jax.random.PRNGKey(0)
-    obs, state = reset(jax.random.split(key, batch))
-    for t in range(4):   # new keys, states and actions every call: still one program
+    _, state = reset(jax.random.split(key, batch))
+    for _ in range(4):   # new keys, states and actions every call: still one program
         key, k_act, k_step, k_reset = jax.random.split(key, 4)
         actions = jax.random.randint(k_act, (batch, env.num_agents), 0, env.num_actions)
-        obs, state, rewards, done, info = step(jax.random.split(k_step, batch), state, actions)
+        _, state, *_ = step(jax.random.split(k_step, batch), state, actions)
         reset(jax.random.split(k_reset, batch))
     assert step._cache_size() == 1 and reset._cache_size() == 1
     assert host_callbacks(step.lower(jax.random.split(key, batch), state, actions)) == 0
@@ -57,6 +57,6 @@ def test_a_training_chunk_compiles_once_without_host_callbacks(algo):
     run = jax.jit(trainer.run, static_argnums=1)
     runner = jax.jit(trainer.init)(jax.random.PRNGKey(0))
     for _ in range(3):
-        runner, metrics = run(runner, 2)
+        runner, _ = run(runner, 2)
     assert run._cache_size() == 1
     assert host_callbacks(run.lower(runner, 2)) == 0
