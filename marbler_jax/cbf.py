@@ -20,6 +20,21 @@ at ``magnitude_limit``, and for every pair i < j with ``e = x_i - x_j``, ``h = |
 ``*_boundary`` kinds add, per robot, ``u_y <= 0.4 gain (y_max - r/2 - y)^3``,
 ``-u_y <= 0.4 gain (y - y_min - r/2)^3`` and the same for x. The output is not re-clipped.
 
+The robust differential-drive kinds ``"uni_dd"`` / ``"uni_dd_boundary"`` (rps-2023/2024
+``create_unicycle_differential_drive_barrier_certificate[_with_boundary]``, Glotfelter et al.;
+``shared/spec/robotarium.md`` sections 10.7-10.8; the second is what JaxRobotarium's numpy
+deployment runs, with ``safety_radius=0.2``) pose their QP in wheel speeds ``w_k = D^-1 (v, omega)_k``:
+``min sum_k |diag(1, d) D (w_k - w_hat_k)|^2`` with pair rows on the projection points
+(``h = |e|^2 - r^2``, no ``+ d``) tightened by a wheel-speed disturbance
+``delta (|2 e^T M_i D|_1 + |2 e^T M_j D|_1)``, boundary rows as above (``0.4 gain``, margin ``r/2``) and
+wheel limits ``|w| <= wheel_vel_limit``. Since ``diag(1, d) D w_k`` is the projection point's velocity
+rotated into the robot's frame, the same QP in ``u_k`` = projection-point velocity has the identity
+Hessian: pair rows of the form above with ``b = gain h^3 - disturbance term``, the boundary boxes, and
+per robot two slabs ``|c_wheel . u_k| <= wheel_vel_limit``. It is solved in that form and mapped back
+exactly (``omega`` is not clipped; ``u_hat`` is not capped: rps takes ``D^-1 dxu`` as it is). rps
+builds its buffers for at most 30 robots; here any N works. rps solves it with CVXOPT (loose default
+tolerances, status unchecked); this solver aims at the exact QP solution.
+
 Solver. The Hessian is the identity, so the dual is a non-negative QP whose coordinate ascent
 (Hildreth's method) has a closed-form step per row: ``dl = max(-l_k, w (a_k.u - b_k) / |a_k|^2)``,
 ``u -= a_k dl``. A single violated constraint is solved exactly by one such step. We run a
@@ -52,7 +67,8 @@ from marbler_jax import controllers
 from marbler_jax._xp import fori_loop, from_minor, is_jax, namespace, result_dtype, to_minor, vmap_in_place
 
 SI_KINDS = ("si", "si2", "si_boundary")
-UNI_KINDS = ("uni", "uni2", "uni_boundary")
+DD_KINDS = ("uni_dd", "uni_dd_boundary")
+UNI_KINDS = ("uni", "uni2", "uni_boundary") + DD_KINDS
 KINDS = SI_KINDS + UNI_KINDS
 
 # rps 6bb184e defaults per kind.
@@ -66,6 +82,12 @@ _DEFAULTS: dict[str, dict[str, Any]] = {
                  projection_distance=0.05, magnitude_limit=0.2),
     "uni_boundary": dict(barrier_gain=100.0, safety_radius=0.12, projection_distance=0.05,
                          magnitude_limit=0.2, boundary_points=(-1.6, 1.6, -1.0, 1.0)),
+    # rps-2023/2024 create_unicycle_differential_drive_barrier_certificate(_with_boundary)
+    "uni_dd": dict(barrier_gain=150.0, safety_radius=0.17, projection_distance=0.05, disturbance=5.0,
+                   wheel_vel_limit=12.5, base_length=0.105, wheel_radius=0.016),
+    "uni_dd_boundary": dict(barrier_gain=150.0, safety_radius=0.17, projection_distance=0.05, disturbance=5.0,
+                            wheel_vel_limit=12.5, base_length=0.105, wheel_radius=0.016,
+                            boundary_points=(-1.6, 1.6, -1.0, 1.0)),
 }
 
 
@@ -76,11 +98,16 @@ class Multipliers(NamedTuple):
         pairs: ``[..., R, H]`` pair-row multipliers in the round layout of :func:`round_robin`.
         lower, upper: ``[..., N, 2]`` multipliers of the boundary boxes (``*_boundary`` kinds),
             else ``None``.
+        wheel_lower, wheel_upper: ``[..., N, 2]`` multipliers of the wheel-speed limits
+            ``-limit <= omega_wheel`` and ``omega_wheel <= limit`` (left, right wheel; ``uni_dd*``
+            kinds), else ``None``.
     """
 
     pairs: Any
     lower: Any = None
     upper: Any = None
+    wheel_lower: Any = None
+    wheel_upper: Any = None
 
 
 class CertificateInfo(NamedTuple):
@@ -155,10 +182,14 @@ class Barrier:
     kind: str
     safety_radius: float
     barrier_gain: float
-    magnitude_limit: float
+    magnitude_limit: float | None      # None: u_nom is not capped (uni_dd kinds)
     unsafe_barrier_gain: float | None = None
     projection_distance: float | None = None
     boundary_points: tuple[float, float, float, float] | None = None
+    disturbance: float | None = None        # uni_dd kinds: wheel-speed disturbance [rad/s]
+    wheel_vel_limit: float | None = None    # uni_dd kinds: |wheel speed| limit [rad/s]
+    base_length: float | None = None        # uni_dd kinds: wheel separation [m]
+    wheel_radius: float | None = None       # uni_dd kinds [m]
     iterations: int | None = None
     relaxation: float | None = None
     tolerance: float = 1e-4
@@ -168,8 +199,15 @@ class Barrier:
         return self.kind in UNI_KINDS
 
     @property
+    def is_differential_drive(self) -> bool:
+        return self.kind in DD_KINDS
+
+    @property
     def si_radius(self) -> float:
-        """Safety radius of the SI problem (``safety_radius + projection_distance`` for unicycles)."""
+        """Safety radius of the SI problem (``safety_radius + projection_distance`` for the rps
+        unicycle kinds; the ``uni_dd`` kinds apply ``safety_radius`` to the projection points)."""
+        if self.is_differential_drive:
+            return self.safety_radius
         return self.safety_radius + (self.projection_distance or 0.0) * self.is_unicycle
 
     def sweeps(self, n: int) -> int:
@@ -186,8 +224,10 @@ class Barrier:
     def initial_multipliers(self, n: int, batch_shape=(), dtype=np.float32, xp=np) -> Multipliers:
         """Zero :class:`Multipliers` for a team of ``n`` robots (a cold start)."""
         rounds, half = round_robin(n)[0].shape
-        box = None if self.boundary_points is None else xp.zeros(tuple(batch_shape) + (n, 2), dtype)
-        return Multipliers(xp.zeros(tuple(batch_shape) + (rounds, half), dtype), box, box)
+        per_robot = xp.zeros(tuple(batch_shape) + (n, 2), dtype)
+        box = None if self.boundary_points is None else per_robot
+        wheels = per_robot if self.is_differential_drive else None
+        return Multipliers(xp.zeros(tuple(batch_shape) + (rounds, half), dtype), box, box, wheels, wheels)
 
     def solve(self, u_nom, x, warm_start: Multipliers | None = None):
         """Certify ``u_nom`` at state ``x``; returns ``(u, CertificateInfo)``.
@@ -224,6 +264,9 @@ class Barrier:
         d = self.projection_distance
         points = controllers.uni_to_si_states(x, d)
         dxi = controllers.uni_to_si_dynamics(u_nom, x, d)
+        if self.is_differential_drive:   # exact inverse of uni_to_si_dynamics: no omega clip
+            dxi, info = solve_si(self, dxi, points, warm_start, headings=x[..., 2])
+            return controllers.si_to_uni_mapping(dxi, x, d, angular_velocity_limit=math.inf), info
         dxi, info = solve_si(self, dxi, points, warm_start)
         return controllers.si_to_uni_mapping(dxi, x, d), info
 
@@ -239,10 +282,13 @@ def make_barrier(kind: str = "si2", **params) -> Barrier:
     """Create a barrier certificate ``certify(u_nom, x) -> u`` (see module docstring).
 
     Args:
-        kind: one of ``"si"``, ``"si2"``, ``"si_boundary"``, ``"uni"``, ``"uni2"``, ``"uni_boundary"``.
+        kind: one of ``"si"``, ``"si2"``, ``"si_boundary"``, ``"uni"``, ``"uni2"``, ``"uni_boundary"``,
+            ``"uni_dd"``, ``"uni_dd_boundary"``.
         safety_radius, barrier_gain, unsafe_barrier_gain, magnitude_limit, projection_distance,
             boundary_points: as in rps (defaults per kind, rps 6bb184e); ``boundary_points`` is
             ``(x_min, x_max, y_min, y_max)``.
+        disturbance, wheel_vel_limit, base_length, wheel_radius: the ``uni_dd`` kinds' wheel model
+            (rps-2023/2024 defaults 5 rad/s, 12.5 rad/s, 0.105 m, 0.016 m).
         iterations: solver sweeps (static); default grows with N (:func:`default_iterations`).
         relaxation: over-relaxation factor in (0, 2) of the coordinate-ascent sweeps; default
             :func:`default_relaxation`.
@@ -259,14 +305,22 @@ def make_barrier(kind: str = "si2", **params) -> Barrier:
     cfg = {**_DEFAULTS[kind], **params}
     gain = float(cfg["barrier_gain"])
     radius = float(cfg["safety_radius"])
-    limit = float(cfg["magnitude_limit"])
+    limit = cfg.get("magnitude_limit")
     if not gain > 0:
         raise ValueError(f"barrier_gain must be > 0, got {gain}")
     min_radius = 0.12 if kind in SI_KINDS else 0.0
     if not radius >= min_radius or not math.isfinite(radius):
         raise ValueError(f"safety_radius must be >= {min_radius} for {kind!r}, got {radius}")
-    if not 0 < limit <= 0.2:
+    if limit is not None and not 0 < float(limit) <= 0.2:
         raise ValueError(f"magnitude_limit must be in (0, 0.2] (the robots' top speed), got {limit}")
+    wheel = {}
+    if kind in DD_KINDS:
+        wheel = {name: float(cfg[name]) for name in ("disturbance", "wheel_vel_limit", "base_length", "wheel_radius")}
+        if not (wheel["disturbance"] >= 0 and math.isfinite(wheel["disturbance"])):
+            raise ValueError(f"disturbance must be a finite value >= 0 [rad/s], got {wheel['disturbance']}")
+        for name in ("wheel_vel_limit", "base_length", "wheel_radius"):
+            if not (wheel[name] > 0 and math.isfinite(wheel[name])):
+                raise ValueError(f"{name} must be finite and > 0, got {wheel[name]}")
     unsafe = cfg.get("unsafe_barrier_gain")
     if unsafe is not None and not float(unsafe) > 0:
         raise ValueError(f"unsafe_barrier_gain must be > 0, got {unsafe}")
@@ -285,25 +339,28 @@ def make_barrier(kind: str = "si2", **params) -> Barrier:
     if relaxation is not None and not 0 < float(relaxation) < 2:
         raise ValueError(f"relaxation must be in (0, 2), got {relaxation}")
     return Barrier(
-        kind=kind, safety_radius=radius, barrier_gain=gain, magnitude_limit=limit,
+        kind=kind, safety_radius=radius, barrier_gain=gain, magnitude_limit=None if limit is None else float(limit),
         unsafe_barrier_gain=None if unsafe is None else float(unsafe),
         projection_distance=None if proj is None else float(proj), boundary_points=bounds,
         iterations=None if iterations is None else int(iterations),
         relaxation=None if relaxation is None else float(relaxation),
-        tolerance=float(cfg.get("tolerance", 1e-4)),
+        tolerance=float(cfg.get("tolerance", 1e-4)), **wheel,
     )
 
 
-def _pair_rows(barrier: Barrier, positions, xp):
+def _pair_rows(barrier: Barrier, positions, xp, headings=None):
     """Pair rows in round layout: ``e [..., R, H, 2]``, ``b``, ``|a|^2`` and ``valid`` ``[..., R, H]``.
 
-    Row (r, k) reads ``-2 e.u_first + 2 e.u_second <= b`` with ``e = x_first - x_second``.
+    Row (r, k) reads ``-2 e.u_first + 2 e.u_second <= b`` with ``e = x_first - x_second``. The
+    ``uni_dd`` kinds pass the robots' ``headings [..., N]`` for their disturbance term.
     """
     n = positions.shape[-2]
     first, second = round_robin(n)
     if n % 2:  # phantom robot: its rows are masked out
         pad = xp.zeros(positions.shape[:-2] + (1, 2), dtype=positions.dtype)
         positions = xp.concatenate([positions, pad], axis=-2)
+        if headings is not None:
+            headings = xp.concatenate([headings, pad[..., 0]], axis=-1)
     e = positions[..., first, :] - positions[..., second, :]
     valid = (first < n) & (second < n)
     e = xp.where(valid[..., None], e, xp.zeros_like(e))
@@ -311,9 +368,34 @@ def _pair_rows(barrier: Barrier, positions, xp):
     gain = barrier.barrier_gain
     if barrier.unsafe_barrier_gain is not None:
         gain = xp.where(h < 0, barrier.unsafe_barrier_gain, gain)
-    b = xp.where(valid, gain * h ** 3, xp.ones_like(h))
+    b = gain * h ** 3
+    if barrier.is_differential_drive:
+        b = b - barrier.disturbance * (_wheel_l1(barrier, e, headings[..., first], xp)
+                                       + _wheel_l1(barrier, e, headings[..., second], xp))
+    b = xp.where(valid, b, xp.ones_like(h))
     a2 = 8 * xp.sum(e * e, axis=-1)
     return e, b, a2, valid
+
+
+def _wheel_l1(barrier: Barrier, e, theta, xp):
+    """``|2 e^T M D|_1``: the 1-norm of a pair row's coefficients on one robot's wheel speeds
+    (``M`` maps (v, omega) to the projection point's velocity, ``D`` wheel speeds to (v, omega))."""
+    c, s = xp.cos(theta), xp.sin(theta)
+    along = 2 * (e[..., 0] * c + e[..., 1] * s)
+    across = 2 * barrier.projection_distance * (-e[..., 0] * s + e[..., 1] * c)
+    k_v, k_w = barrier.wheel_radius / 2, barrier.wheel_radius / barrier.base_length
+    return xp.abs(along * k_v - across * k_w) + xp.abs(along * k_v + across * k_w)
+
+
+def _wheel_rows(barrier: Barrier, headings, xp):
+    """Wheel-speed rows on the projection-point velocity ``u``: ``|c_w . u| <= wheel_vel_limit`` with
+    ``c_left, c_right`` each ``[..., N, 2]`` (the wheel speeds are ``D^-1 M^-1 u``)."""
+    c, s = xp.cos(headings), xp.sin(headings)
+    k = barrier.base_length / (2 * barrier.projection_distance)
+    r = barrier.wheel_radius
+    left = xp.stack([c + k * s, s - k * c], axis=-1) / r
+    right = xp.stack([c - k * s, s + k * c], axis=-1) / r
+    return left, right
 
 
 def _boxes(barrier: Barrier, positions, xp):
@@ -338,16 +420,20 @@ def _incidence(n: int) -> np.ndarray:
     return inc
 
 
-def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None = None):
+def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None = None, headings=None):
     """The SI certificate QP for ``positions [..., N, 2]``; returns ``(u [..., N, 2], info)``.
 
     Internally every batch axis is folded into the last (minor) axis, so each vector step of the
     sweep runs over the whole batch with unit stride. ``warm_start`` (multipliers of a previous
     solve) sets the initial multipliers and the matching primal point ``u_hat - A^T lambda``.
+    The ``uni_dd`` kinds pass the robots' ``headings [..., N]`` (their disturbance term and wheel rows).
     """
     xp = namespace(u_nom, positions)
     n = positions.shape[-2]
-    u_hat = controllers.cap_norm(u_nom, barrier.magnitude_limit)
+    if barrier.magnitude_limit is None:
+        u_hat = u_nom
+    else:
+        u_hat = controllers.cap_norm(u_nom, barrier.magnitude_limit)
     batch = u_hat.shape[:-2]
     if n == 0:
         zero = xp.zeros(batch, dtype=u_hat.dtype)
@@ -357,7 +443,7 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
     rounds, half = first.shape
     m = n + n % 2
     nb = len(batch)
-    e, b, a2, valid = _pair_rows(barrier, positions, xp)
+    e, b, a2, valid = _pair_rows(barrier, positions, xp, headings)
     usable = a2 > 0
     inv_a2 = to_minor(xp.where(usable, 1 / xp.where(usable, a2, 1), 0), nb, xp)  # [R, H, B]
     ex = to_minor(2 * e[..., 0], nb, xp)
@@ -368,6 +454,13 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
         lo, hi = _boxes(barrier, positions, xp)
         lo_x, lo_y = to_minor(lo[..., 0], nb, xp), to_minor(lo[..., 1], nb, xp)  # [N, B]
         hi_x, hi_y = to_minor(hi[..., 0], nb, xp), to_minor(hi[..., 1], nb, xp)
+    wheeled = barrier.is_differential_drive
+    if wheeled:
+        c_left, c_right = _wheel_rows(barrier, headings, xp)
+        wheel_dirs = tuple(to_minor(c[..., i], nb, xp) for c in (c_left, c_right) for i in (0, 1))  # [N, B]
+        k = barrier.base_length / (2 * barrier.projection_distance)
+        inv_c2 = barrier.wheel_radius ** 2 / (1 + k * k)     # 1 / |c|^2, the same for both wheels
+        limit = barrier.wheel_vel_limit
     omega = barrier.omega(n)
 
     def rotate(v):  # slots 1..m-1 right by one (circle method)
@@ -379,10 +472,20 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
         step_lo = xp.maximum(-lam_lo, w * (lo_c - uc))
         return uc + step_lo, lam_lo + step_lo, lam_hi + step_hi
 
+    def slab_step(cx, cy, lam_lo, lam_hi, dir_x, dir_y, w):
+        """Rows ``dir.u <= limit`` (``lam_hi``) and ``-dir.u <= limit`` (``lam_lo``), one robot each."""
+        step_hi = xp.maximum(-lam_hi, w * (dir_x * cx + dir_y * cy - limit) * inv_c2)
+        cx, cy = cx - dir_x * step_hi, cy - dir_y * step_hi
+        step_lo = xp.maximum(-lam_lo, w * (-limit - dir_x * cx - dir_y * cy) * inv_c2)
+        return cx + dir_x * step_lo, cy + dir_y * step_lo, lam_lo + step_lo, lam_hi + step_hi
+
     def sweep(i, carry):
-        ux, uy, lam, box = carry
+        ux, uy, lam, box, wheels = carry
         # The first sweep is plain Gauss-Seidel: it solves single-active-constraint problems exactly.
-        w = (1.0 if i == 0 else omega) if xp is np else xp.where(i == 0, 1.0, omega)
+        # So is the last for the uni_dd kinds, whose wheel limits can make the QP infeasible: an
+        # over-relaxed final step would throw the output past the wheel limits it just enforced.
+        plain = (i == 0) | (i == last) if wheeled else i == 0
+        w = (1.0 if plain else omega) if xp is np else xp.where(plain, 1.0, omega)
         lam = list(lam)
         for r in range(rounds):
             ax, bx = ux[:half], ux[half:][::-1]
@@ -394,14 +497,21 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
             px, py = exr * step, eyr * step
             ux = rotate(xp.concatenate([ax + px, (bx - px)[::-1]], axis=0))
             uy = rotate(xp.concatenate([ay + py, (by - py)[::-1]], axis=0))
-        if boxed:
-            llx, lhx, lly, lhy = box
-            cx, llx, lhx = box_step(ux[:n], llx, lhx, lo_x, hi_x, w)
-            cy, lly, lhy = box_step(uy[:n], lly, lhy, lo_y, hi_y, w)
+        if boxed or wheeled:
+            cx, cy = ux[:n], uy[:n]
+            if boxed:
+                llx, lhx, lly, lhy = box
+                cx, llx, lhx = box_step(cx, llx, lhx, lo_x, hi_x, w)
+                cy, lly, lhy = box_step(cy, lly, lhy, lo_y, hi_y, w)
+                box = (llx, lhx, lly, lhy)
+            if wheeled:
+                l_lo, l_hi, r_lo, r_hi = wheels
+                cx, cy, l_lo, l_hi = slab_step(cx, cy, l_lo, l_hi, wheel_dirs[0], wheel_dirs[1], w)
+                cx, cy, r_lo, r_hi = slab_step(cx, cy, r_lo, r_hi, wheel_dirs[2], wheel_dirs[3], w)
+                wheels = (l_lo, l_hi, r_lo, r_hi)
             ux = xp.concatenate([cx, ux[n:]], axis=0)
             uy = xp.concatenate([cy, uy[n:]], axis=0)
-            box = (llx, lhx, lly, lhy)
-        return ux, uy, tuple(lam), box
+        return ux, uy, tuple(lam), box, wheels
 
     flat_b = bm.shape[-1]
     uh = to_minor(u_hat, nb, xp)  # [N, 2, B]
@@ -411,6 +521,7 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
     lam0 = tuple(xp.zeros((half, flat_b), dtype=u_hat.dtype) for _ in range(rounds))
     zero_box = xp.zeros((n, flat_b), dtype=u_hat.dtype)
     box0 = (zero_box,) * 4 if boxed else ()
+    wheels0 = (zero_box,) * 4 if wheeled else ()
     if warm_start is not None:
         # Rows that cannot act (phantom, coincident robots) start at zero; u0 = u_hat - A^T lambda0.
         lam_w = xp.where(inv_a2 > 0, xp.maximum(to_minor(warm_start.pairs, nb, xp), 0), 0)   # [R, H, B]
@@ -424,7 +535,16 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
             shift = xp.concatenate([lo_w - hi_w, xp.zeros((m - n, 2, flat_b), dtype=u_hat.dtype)], axis=0)
             ux0, uy0 = ux0 + shift[:, 0], uy0 + shift[:, 1]
             box0 = (lo_w[:, 0], hi_w[:, 0], lo_w[:, 1], hi_w[:, 1])
-    ux, uy, lam, box = fori_loop(xp, 0, barrier.sweeps(n), sweep, (ux0, uy0, lam0, box0))
+        if wheeled:
+            w_lo = xp.maximum(to_minor(warm_start.wheel_lower, nb, xp), 0)   # [N, 2 wheels, B]
+            w_hi = xp.maximum(to_minor(warm_start.wheel_upper, nb, xp), 0)
+            net = w_lo - w_hi
+            pad_n = xp.zeros((m - n, flat_b), dtype=u_hat.dtype)
+            ux0 = ux0 + xp.concatenate([wheel_dirs[0] * net[:, 0] + wheel_dirs[2] * net[:, 1], pad_n], axis=0)
+            uy0 = uy0 + xp.concatenate([wheel_dirs[1] * net[:, 0] + wheel_dirs[3] * net[:, 1], pad_n], axis=0)
+            wheels0 = (w_lo[:, 0], w_hi[:, 0], w_lo[:, 1], w_hi[:, 1])
+    last = barrier.sweeps(n) - 1
+    ux, uy, lam, box, wheels = fori_loop(xp, 0, barrier.sweeps(n), sweep, (ux0, uy0, lam0, box0, wheels0))
     # (m - 1) rotations per sweep bring the slots back to robot order.
     u = from_minor(xp.stack([ux[:n], uy[:n]], axis=1), batch, xp)
     lam = from_minor(xp.stack(lam, axis=0), batch, xp)  # [..., R, H]
@@ -433,11 +553,17 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
         lam_lo, lam_hi = xp.stack([llx, lly], axis=-1), xp.stack([lhx, lhy], axis=-1)
     else:
         lo = hi = lam_lo = lam_hi = None
-    info = _diagnostics(barrier, u, e, b, a2, valid, lam, lo, hi, lam_lo, lam_hi, xp)
-    return u, info._replace(multipliers=Multipliers(lam, lam_lo, lam_hi))
+    wheel_rows = None
+    if wheeled:
+        l_lo, l_hi, r_lo, r_hi = (from_minor(v, batch, xp) for v in wheels)
+        wheel_lo, wheel_hi = xp.stack([l_lo, r_lo], axis=-1), xp.stack([l_hi, r_hi], axis=-1)
+        wheel_rows = (c_left, c_right, wheel_lo, wheel_hi)
+    info = _diagnostics(barrier, u, e, b, a2, valid, lam, lo, hi, lam_lo, lam_hi, xp, wheel_rows)
+    multipliers = Multipliers(lam, lam_lo, lam_hi, *(wheel_rows[2:] if wheeled else ()))
+    return u, info._replace(multipliers=multipliers)
 
 
-def _diagnostics(barrier, u, e, b, a2, valid, lam, lo, hi, lam_lo, lam_hi, xp):
+def _diagnostics(barrier, u, e, b, a2, valid, lam, lo, hi, lam_lo, lam_hi, xp, wheel_rows=None):
     """Violation of every row at the returned ``u`` (not only the rows the solver touched)."""
     n = u.shape[-2]
     first, second = round_robin(n)
@@ -460,10 +586,17 @@ def _diagnostics(barrier, u, e, b, a2, valid, lam, lo, hi, lam_lo, lam_hi, xp):
         box_viol = xp.maximum(u - hi, lo - u)
         worst = xp.maximum(worst, xp.max(box_viol.reshape(flat), axis=-1))
         active = active + xp.sum(((lam_lo > 0) | (lam_hi > 0)).reshape(flat), axis=-1)
+    if wheel_rows is not None:   # |c . u| <= limit, violation as a distance along c
+        c_left, c_right, wheel_lo, wheel_hi = wheel_rows
+        speeds = xp.stack([xp.sum(c_left * u, axis=-1), xp.sum(c_right * u, axis=-1)], axis=-1)
+        norm = xp.sqrt(xp.sum(c_left * c_left, axis=-1))[..., None]
+        wheel_viol = (xp.abs(speeds) - barrier.wheel_vel_limit) / norm
+        worst = xp.maximum(worst, xp.max(wheel_viol.reshape(flat), axis=-1))
+        active = active + xp.sum(((wheel_lo > 0) | (wheel_hi > 0)).reshape(flat), axis=-1)
     scale = 1 + xp.max(xp.abs(u).reshape(flat), axis=-1)
     feasible = (worst <= barrier.tolerance * scale) & ~degenerate
     return CertificateInfo(worst, feasible, active)
 
 
-__all__ = ["make_barrier", "Barrier", "CertificateInfo", "Multipliers", "KINDS", "SI_KINDS", "UNI_KINDS",
+__all__ = ["make_barrier", "Barrier", "CertificateInfo", "Multipliers", "KINDS", "SI_KINDS", "UNI_KINDS", "DD_KINDS",
            "round_robin", "default_iterations", "default_relaxation", "solve_si"]

@@ -165,7 +165,7 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", default="bench_out/cbf.json", help="JSON output path")
     parser.add_argument("--quick", action="store_true", help="small grid, short timings (smoke test)")
-    parser.add_argument("--kinds", default="si2,si,si_boundary,uni,uni2,uni_boundary")
+    parser.add_argument("--kinds", default="si2,si,si_boundary,uni,uni2,uni_boundary,uni_dd,uni_dd_boundary")
     parser.add_argument("--sweep-study-only", action="store_true", help="only the si2 N=20 sweep study")
     args = parser.parse_args(argv)
     if args.sweep_study_only:
