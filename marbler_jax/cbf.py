@@ -389,13 +389,14 @@ def _wheel_l1(barrier: Barrier, e, theta, xp):
 
 def _wheel_rows(barrier: Barrier, headings, xp):
     """Wheel-speed rows on the projection-point velocity ``u``: ``|c_w . u| <= wheel_vel_limit`` with
-    ``c_left, c_right`` each ``[..., N, 2]`` (the wheel speeds are ``D^-1 M^-1 u``)."""
+    ``c_left, c_right`` each ``[..., N, 2]`` (the wheel speeds are ``D^-1 M^-1 u``), and ``|c_w|^2``
+    (a constant, the same for both wheels and every heading)."""
     c, s = xp.cos(headings), xp.sin(headings)
     k = barrier.base_length / (2 * barrier.projection_distance)
     r = barrier.wheel_radius
     left = xp.stack([c + k * s, s - k * c], axis=-1) / r
     right = xp.stack([c - k * s, s + k * c], axis=-1) / r
-    return left, right
+    return left, right, (1 + k * k) / (r * r)
 
 
 def _boxes(barrier: Barrier, positions, xp):
@@ -456,10 +457,9 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
         hi_x, hi_y = to_minor(hi[..., 0], nb, xp), to_minor(hi[..., 1], nb, xp)
     wheeled = barrier.is_differential_drive
     if wheeled:
-        c_left, c_right = _wheel_rows(barrier, headings, xp)
+        c_left, c_right, wheel_norm2 = _wheel_rows(barrier, headings, xp)
         wheel_dirs = tuple(to_minor(c[..., i], nb, xp) for c in (c_left, c_right) for i in (0, 1))  # [N, B]
-        k = barrier.base_length / (2 * barrier.projection_distance)
-        inv_c2 = barrier.wheel_radius ** 2 / (1 + k * k)     # 1 / |c|^2, the same for both wheels
+        inv_c2 = 1 / wheel_norm2
         limit = barrier.wheel_vel_limit
     omega = barrier.omega(n)
 
@@ -543,8 +543,9 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
             ux0 = ux0 + xp.concatenate([wheel_dirs[0] * net[:, 0] + wheel_dirs[2] * net[:, 1], pad_n], axis=0)
             uy0 = uy0 + xp.concatenate([wheel_dirs[1] * net[:, 0] + wheel_dirs[3] * net[:, 1], pad_n], axis=0)
             wheels0 = (w_lo[:, 0], w_hi[:, 0], w_lo[:, 1], w_hi[:, 1])
-    last = barrier.sweeps(n) - 1
-    ux, uy, lam, box, wheels = fori_loop(xp, 0, barrier.sweeps(n), sweep, (ux0, uy0, lam0, box0, wheels0))
+    sweeps = barrier.sweeps(n)
+    last = sweeps - 1
+    ux, uy, lam, box, wheels = fori_loop(xp, 0, sweeps, sweep, (ux0, uy0, lam0, box0, wheels0))
     # (m - 1) rotations per sweep bring the slots back to robot order.
     u = from_minor(xp.stack([ux[:n], uy[:n]], axis=1), batch, xp)
     lam = from_minor(xp.stack(lam, axis=0), batch, xp)  # [..., R, H]
@@ -557,9 +558,9 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
     if wheeled:
         l_lo, l_hi, r_lo, r_hi = (from_minor(v, batch, xp) for v in wheels)
         wheel_lo, wheel_hi = xp.stack([l_lo, r_lo], axis=-1), xp.stack([l_hi, r_hi], axis=-1)
-        wheel_rows = (c_left, c_right, wheel_lo, wheel_hi)
+        wheel_rows = (c_left, c_right, wheel_norm2, wheel_lo, wheel_hi)
     info = _diagnostics(barrier, u, e, b, a2, valid, lam, lo, hi, lam_lo, lam_hi, xp, wheel_rows)
-    multipliers = Multipliers(lam, lam_lo, lam_hi, *(wheel_rows[2:] if wheeled else ()))
+    multipliers = Multipliers(lam, lam_lo, lam_hi, *(wheel_rows[3:] if wheeled else ()))
     return u, info._replace(multipliers=multipliers)
 
 
@@ -587,10 +588,9 @@ def _diagnostics(barrier, u, e, b, a2, valid, lam, lo, hi, lam_lo, lam_hi, xp, w
         worst = xp.maximum(worst, xp.max(box_viol.reshape(flat), axis=-1))
         active = active + xp.sum(((lam_lo > 0) | (lam_hi > 0)).reshape(flat), axis=-1)
     if wheel_rows is not None:   # |c . u| <= limit, violation as a distance along c
-        c_left, c_right, wheel_lo, wheel_hi = wheel_rows
+        c_left, c_right, norm2, wheel_lo, wheel_hi = wheel_rows
         speeds = xp.stack([xp.sum(c_left * u, axis=-1), xp.sum(c_right * u, axis=-1)], axis=-1)
-        norm = xp.sqrt(xp.sum(c_left * c_left, axis=-1))[..., None]
-        wheel_viol = (xp.abs(speeds) - barrier.wheel_vel_limit) / norm
+        wheel_viol = (xp.abs(speeds) - barrier.wheel_vel_limit) / math.sqrt(norm2)
         worst = xp.maximum(worst, xp.max(wheel_viol.reshape(flat), axis=-1))
         active = active + xp.sum(((wheel_lo > 0) | (wheel_hi > 0)).reshape(flat), axis=-1)
     scale = 1 + xp.max(xp.abs(u).reshape(flat), axis=-1)
