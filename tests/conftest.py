@@ -19,7 +19,13 @@ _CACHE = os.environ.setdefault(
 # sub-second programs that several workers and CLI subprocesses build add up too.
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 
-import jax  # noqa: E402  (after the cache setting, which jax reads at import)
+# LLVM at -O2 instead of XLA's default -O3: the suite is compile-bound, and -O2 compiles its programs ~30 % faster
+# (a scenario's step: 2.0 vs 3.2 s) with no measurable change in how fast they run (4 test modules, cold cache:
+# 4:27 vs 5:24). A level already in XLA_FLAGS is kept.
+if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=2").strip()
+
+import jax  # noqa: E402  (after the cache and XLA settings, which jax reads at import)
 
 jax.config.update("jax_compilation_cache_dir", _CACHE)
 jax.config.update("jax_persistent_cache_min_compile_time_secs",
