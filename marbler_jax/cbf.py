@@ -554,13 +554,13 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
         lam_lo, lam_hi = xp.stack([llx, lly], axis=-1), xp.stack([lhx, lhy], axis=-1)
     else:
         lo = hi = lam_lo = lam_hi = None
-    wheel_rows = None
+    wheel_rows = wheel_lo = wheel_hi = None
     if wheeled:
         l_lo, l_hi, r_lo, r_hi = (from_minor(v, batch, xp) for v in wheels)
         wheel_lo, wheel_hi = xp.stack([l_lo, r_lo], axis=-1), xp.stack([l_hi, r_hi], axis=-1)
         wheel_rows = (c_left, c_right, wheel_norm2, wheel_lo, wheel_hi)
     info = _diagnostics(barrier, u, e, b, a2, valid, lam, lo, hi, lam_lo, lam_hi, xp, wheel_rows)
-    multipliers = Multipliers(lam, lam_lo, lam_hi, *(wheel_rows[3:] if wheeled else ()))
+    multipliers = Multipliers(lam, lam_lo, lam_hi, wheel_lo, wheel_hi)
     return u, info._replace(multipliers=multipliers)
 
 
