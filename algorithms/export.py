@@ -30,7 +30,8 @@ def policy_tensors(algo: str, cfg, params) -> tuple[dict, dict]:
                       layers=[f"actor.{name}" for name in layers])
         return fields, _float32(flatten_params({"actor": actor}, "."))
     agent = params["agent"]["params"]
-    fields = dict(kind="q_agent", recurrent=cfg.recurrent, hidden=cfg.hidden, activation="relu", layers=[])
+    fields = dict(kind="q_agent", recurrent=cfg.recurrent, cell=cfg.cell if cfg.recurrent else "none",
+                  hidden=cfg.hidden, activation="relu", layers=[])
     return fields, _float32(flatten_params(agent, "."))
 
 

@@ -13,6 +13,7 @@ an agent-ID one-hot (:func:`with_agent_ids`) tells the agents apart.
 """
 from __future__ import annotations
 
+import functools
 from typing import Sequence
 
 import flax.linen as nn
@@ -89,28 +90,90 @@ class QAgent(nn.Module):
     """Per-agent Q-values ``[..., num_actions]`` from one observation ``[..., D]``.
 
     ``__call__(hidden [..., H], obs [..., D], reset [..., 1] bool) -> (hidden, q)``: ``reset`` zeroes
-    the incoming hidden state (episode start). ``recurrent=True`` is EPyMARL's ``RNNAgent``
-    (``Dense(H) -> ReLU -> GRUCell(H) -> Dense(A)``, flax's GRU gate layout); ``recurrent=False``
-    replaces the GRU cell with ``Dense(H) -> ReLU`` and passes ``hidden`` through unchanged.
+    the incoming hidden state (episode start). ``cell`` picks the memory between ``fc1`` and ``fc2``:
+
+    * ``"gru"`` -- EPyMARL's ``RNNAgent`` (``Dense(H) -> ReLU -> GRUCell(H) -> Dense(A)``, flax's GRU
+      gate layout);
+    * ``"mingru"`` -- a minimal GRU (Feng et al. 2024, "Were RNNs all we needed?"): the update gate
+      and the candidate depend on the input only, ``z = sigmoid(x W_z + b_z)``, ``c = x W_c + b_c``,
+      ``h = (1 - z) * h_prev + z * c``, then ``Dense(H) -> ReLU -> Dense(A)`` on ``h``. The
+      recurrence is linear in ``h``, so a whole sequence costs one batched matmul per layer plus an
+      elementwise scan (:meth:`sequence`), not a matmul per time step;
+    * ``"none"`` -- feed-forward: ``Dense(H) -> ReLU`` instead of the cell; ``hidden`` passes
+      through unchanged.
+
+    ``recurrent=False`` is the older spelling of ``cell="none"``.
     """
 
     num_actions: int
     hidden: int = 128
     recurrent: bool = True
+    cell: str = "gru"
 
-    @nn.compact
-    def __call__(self, hidden, obs, reset):
-        x = nn.relu(nn.Dense(self.hidden, name="fc1")(obs))
-        if self.recurrent:
-            hidden = jnp.where(reset, 0.0, hidden)
-            hidden, x = nn.GRUCell(self.hidden, recurrent_kernel_init=orthogonal(), name="gru")(hidden, x)
+    def setup(self):
+        if self.memory not in CELLS:
+            raise ValueError(f"cell must be one of {list(CELLS)}, got {self.cell!r}")
+        self.fc1 = nn.Dense(self.hidden)
+        if self.memory == "gru":
+            self.gru = nn.GRUCell(self.hidden, recurrent_kernel_init=orthogonal())
+        elif self.memory == "mingru":
+            self.mingru = nn.Dense(2 * self.hidden)
+            self.fc_out = nn.Dense(self.hidden)
         else:
-            x = nn.relu(nn.Dense(self.hidden, name="fc_hidden")(x))
-        return hidden, nn.Dense(self.num_actions, name="fc2")(x)
+            self.fc_hidden = nn.Dense(self.hidden)
+        self.fc2 = nn.Dense(self.num_actions)
+
+    @property
+    def memory(self) -> str:
+        return self.cell if self.recurrent else "none"
+
+    def _mingru_gates(self, x):
+        gates = self.mingru(x)
+        z = nn.sigmoid(gates[..., :self.hidden])
+        return 1.0 - z, z * gates[..., self.hidden:]
+
+    def _mingru_head(self, hidden):
+        return self.fc2(nn.relu(self.fc_out(hidden)))
+
+    def __call__(self, hidden, obs, reset):
+        x = nn.relu(self.fc1(obs))
+        if self.memory == "gru":
+            hidden = jnp.where(reset, 0.0, hidden)
+            hidden, x = self.gru(hidden, x)
+            return hidden, self.fc2(x)
+        if self.memory == "mingru":
+            keep, write = self._mingru_gates(x)
+            hidden = keep * jnp.where(reset, 0.0, hidden) + write
+            return hidden, self._mingru_head(hidden)
+        return hidden, self.fc2(nn.relu(self.fc_hidden(x)))
+
+    def sequence(self, obs, reset):
+        """Q-values ``[T, ..., A]`` along sequences ``obs [T, ..., D]`` from a zero hidden state
+        (``reset [T, ..., 1]`` zeroes it before a step). Equal to stepping :meth:`__call__`; for
+        ``"mingru"`` and ``"none"``, whose whole sequence needs no per-step matmul (a GRU is stepped
+        by the caller's own scan)."""
+        if self.memory == "gru":
+            raise ValueError("QAgent.sequence is for cell='mingru' or 'none'; step a GRU with __call__")
+        x = nn.relu(self.fc1(obs))
+        if self.memory == "none":
+            return self.fc2(nn.relu(self.fc_hidden(x)))
+        keep, write = self._mingru_gates(x)
+        keep = jnp.where(reset, 0.0, keep)
+
+        def step(hidden, inputs):
+            hidden = inputs[0] * hidden + inputs[1]
+            return hidden, hidden
+
+        hidden = jax.lax.scan(step, jnp.zeros(keep.shape[1:], keep.dtype), (keep, write))[1]
+        return self._mingru_head(hidden)
 
     def initial_hidden(self, batch_shape=()):
         """Zero hidden state ``[*batch_shape, H]`` (``[*batch_shape, 1]`` for feed-forward agents)."""
-        return jnp.zeros(tuple(batch_shape) + ((self.hidden,) if self.recurrent else (1,)), jnp.float32)
+        width = 1 if self.memory == "none" else self.hidden
+        return jnp.zeros(tuple(batch_shape) + (width,), jnp.float32)
+
+
+CELLS = ("gru", "mingru", "none")
 
 
 def with_agent_ids(obs):
@@ -131,11 +194,13 @@ def init_agents(module: nn.Module, key, sample_inputs, num_agents: int, shared: 
     return jax.vmap(lambda k: module.init(k, *sample))(jax.random.split(key, num_agents))
 
 
-def apply_agents(module: nn.Module, params, *inputs, shared: bool):
+def apply_agents(module: nn.Module, params, *inputs, shared: bool, method=None):
     """Apply to inputs ``[..., N, F]`` (agent axis second to last): the same parameters for all
-    agents, or agent i's to agent i. Outputs keep the agent axis in the same place."""
+    agents, or agent i's to agent i. Outputs keep the agent axis in the same place. ``method``
+    (default ``__call__``) is the module's method to apply."""
+    apply = functools.partial(module.apply, method=method)
     if shared:
-        return module.apply(params, *inputs)
+        return apply(params, *inputs)
     agent_axis = inputs[0].ndim - 2
-    return jax.vmap(module.apply, in_axes=(0,) + tuple(x.ndim - 2 for x in inputs),
+    return jax.vmap(apply, in_axes=(0,) + tuple(x.ndim - 2 for x in inputs),
                     out_axes=agent_axis)(params, *inputs)

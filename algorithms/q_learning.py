@@ -7,8 +7,8 @@ module is everything else, as in EPyMARL:
 * **Acting.** Each update resets ``num_envs`` envs and runs them for ``num_steps`` steps (default:
   the episode length, so every sequence starts at an episode start; envs auto-reset, and an episode
   that ends early is followed by the next one in the same sequence). Agents act epsilon-greedily on
-  :class:`~algorithms.networks.QAgent` Q-values (GRU or feed-forward; one parameter set + agent-ID
-  one-hot, or per-agent parameters). Epsilon falls linearly from ``eps_start`` to ``eps_finish``
+  :class:`~algorithms.networks.QAgent` Q-values (GRU, minimal GRU or feed-forward; one parameter set
+  + agent-ID one-hot, or per-agent parameters). Epsilon falls linearly from ``eps_start`` to ``eps_finish``
   over ``eps_decay_steps`` env steps.
 * **Replay.** The sequences go into an :mod:`algorithms.buffer` episode buffer of ``buffer_size``
   sequences.
@@ -46,7 +46,7 @@ from algorithms import buffer as episode_buffer
 from algorithms.common import episode_info, rollout_metrics
 from algorithms.data_parallel import split_batch
 from algorithms.ippo import global_state
-from algorithms.networks import QAgent, apply_agents, init_agents, with_agent_ids
+from algorithms.networks import CELLS, QAgent, apply_agents, init_agents, with_agent_ids
 from marbler_jax.rollout import StatefulPolicy
 
 
@@ -75,7 +75,8 @@ class QConfig:
     td_lambda: float = 0.0           # > 0: TD(lambda) targets along each sequence (0 = one-step)
     reward_norm: str = "none"        # none | scale (r / std) | standardise ((r - mean) / std, EPyMARL's)
     hidden: int = 128
-    recurrent: bool = True
+    recurrent: bool = True           # False: feed-forward agents (same as cell="none")
+    cell: str = "gru"                # gru | mingru | none (algorithms.networks.QAgent)
     shared: bool = True
     agent_ids: bool = True
     learner_devices: int = 1         # > 1: each gradient step's batch split over this many devices
@@ -95,6 +96,8 @@ class QConfig:
             raise ValueError(f"td_lambda must be in [0, 1], got {self.td_lambda}")
         if not 0.0 < self.tau <= 1.0:
             raise ValueError(f"tau must be in (0, 1], got {self.tau}")
+        if self.cell not in CELLS:
+            raise ValueError(f"cell must be one of {list(CELLS)}, got {self.cell!r}")
         if self.reward_norm not in REWARD_NORMS:
             raise ValueError(f"reward_norm must be one of {list(REWARD_NORMS)}, got {self.reward_norm!r}")
         if self.batch_size % self.learner_devices:
@@ -159,7 +162,7 @@ def sequence_length(env, cfg: QConfig) -> int:
 
 
 def agent_module(env, cfg: QConfig) -> QAgent:
-    return QAgent(env.num_actions, cfg.hidden, cfg.recurrent)
+    return QAgent(env.num_actions, cfg.hidden, cfg.recurrent, cfg.cell)
 
 
 def agent_inputs(cfg: QConfig, obs):
@@ -184,13 +187,15 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
 
     def q_sequences(agent_params, target_params, obs, resets):
         """Online and target Q-values, each ``[T, B, N, A]``, along sequences ``obs [T, B, N, D]``
-        (``resets [T, B]``). Both networks advance in one scan: half the loop steps of two unrolls,
-        and each step's two small GRU matmuls run back to back."""
+        (``resets [T, B]``). GRU agents: both networks advance in one scan (half the loop steps of
+        two unrolls; each step's two small GRU matmuls run back to back). Minimal-GRU and
+        feed-forward agents take the whole sequence at once (``QAgent.sequence``)."""
         reset = jnp.broadcast_to(resets[..., None, None], resets.shape + (n_agents, 1))
+        if agent.memory != "gru":      # no per-step matmul: each network takes the whole sequence
+            inputs = (agent_inputs(cfg, obs), reset)
+            return tuple(apply_agents(agent, p, *inputs, shared=cfg.shared, method=QAgent.sequence)
+                         for p in (agent_params, target_params))
         hidden = agent.initial_hidden(obs.shape[1:3])
-        if not cfg.recurrent:          # no memory: all steps in one batched call
-            hidden = jnp.broadcast_to(hidden, obs.shape[:1] + hidden.shape)
-            return q_values(agent_params, hidden, obs, reset)[1], q_values(target_params, hidden, obs, reset)[1]
 
         def step(hiddens, inputs):
             h_online, q_online = q_values(agent_params, hiddens[0], *inputs)

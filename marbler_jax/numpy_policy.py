@@ -4,7 +4,8 @@ This module imports numpy only (no JAX), so it runs where JAX is not installed (
 server). A policy folder, written by ``marbler-jax export`` (:mod:`algorithms.export`), is flat:
 
 * ``policy_spec.npy`` -- a 0-d unicode array holding JSON: ``format``, ``kind`` (``"q_agent"`` for
-  VDN/QMIX/QMIX_NS, ``"actor"`` for IPPO/MAPPO), ``recurrent``, ``shared``, ``agent_ids``,
+  VDN/QMIX/QMIX_NS, ``"actor"`` for IPPO/MAPPO), ``recurrent``, ``cell`` (``"gru"``, ``"mingru"``
+  or ``"none"``; absent in older folders, where it is ``"gru"`` if ``recurrent``), ``shared``, ``agent_ids``,
   ``num_agents``, ``obs_dim``, ``num_actions``, ``hidden``, ``activation``, ``layers`` (actor MLP
   layer names in order) and ``tensors`` (parameter name -> file name).
 * one ``.npy`` per parameter tensor (``float32``; with a leading agent axis when not shared).
@@ -15,7 +16,8 @@ flax modules in ``algorithms/networks.py``):
 * ``q_agent``: ``x = relu(obs W_fc1 + b)``; recurrent: flax ``GRUCell`` --
   ``r = s(x W_ir + b_ir + h W_hr)``, ``z = s(x W_iz + b_iz + h W_hz)``,
   ``n = tanh(x W_in + b_in + r * (h W_hn + b_hn))``, ``h' = (1 - z) n + z h``, ``x = h'``;
-  feed-forward: ``x = relu(x W_fc_hidden + b)``; ``q = x W_fc2 + b``.
+  minimal GRU: ``[g_z, g_c] = x W_mingru + b``, ``z = s(g_z)``, ``h' = (1 - z) h + z g_c``,
+  ``x = relu(h' W_fc_out + b)``; feed-forward: ``x = relu(x W_fc_hidden + b)``; ``q = x W_fc2 + b``.
 * ``actor``: ``Dense -> act -> ... -> Dense`` (logits).
 
 Greedy action = argmax over the last axis (first maximum on ties, as ``jnp.argmax``).
@@ -46,6 +48,10 @@ class NumpyPolicy:
         self.num_agents = int(spec["num_agents"])
         self.obs_dim = int(spec["obs_dim"])
         self.recurrent = bool(spec["kind"] == "q_agent" and spec["recurrent"])
+        self.cell = spec.get("cell", "gru") if self.recurrent else "none"
+        if self.cell not in ("gru", "mingru", "none"):
+            raise ValueError(f"unsupported recurrent cell {self.cell!r} in the policy spec; "
+                             "expected gru, mingru or none")
 
     def initial_hidden(self) -> np.ndarray:
         """Zero memory ``[N, H]`` (``[N, 1]`` for memoryless policies)."""
@@ -81,11 +87,18 @@ class NumpyPolicy:
         x = np.maximum(self._dense("fc1", x), 0)
         if self.recurrent:
             h = self.initial_hidden() if hidden is None else np.asarray(hidden, np.float32)
+        if self.cell == "gru":
             r = _sigmoid(self._dense("gru.ir", x) + self._dense("gru.hr", h))
             z = _sigmoid(self._dense("gru.iz", x) + self._dense("gru.hz", h))
             n = np.tanh(self._dense("gru.in", x) + r * self._dense("gru.hn", h))
             hidden = (1.0 - z) * n + z * h
             x = hidden
+        elif self.cell == "mingru":
+            gates = self._dense("mingru", x)
+            width = h.shape[-1]
+            z = _sigmoid(gates[..., :width])
+            hidden = (1.0 - z) * h + z * gates[..., width:]
+            x = np.maximum(self._dense("fc_out", hidden), 0)
         else:
             x = np.maximum(self._dense("fc_hidden", x), 0)
         return self._dense("fc2", x), hidden

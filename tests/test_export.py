@@ -21,11 +21,13 @@ CASES = {
     "vdn-gru-shared": (vdn, vdn.VDNConfig(hidden=32)),
     "qmix-ff-shared": (qmix, qmix.QMIXConfig(hidden=32, recurrent=False)),
     "qmix_ns-gru": (qmix, qmix.QMIXNSConfig(hidden=32)),
+    "vdn-mingru-shared": (vdn, vdn.VDNConfig(hidden=32, cell="mingru")),
+    "qmix_ns-mingru": (qmix, qmix.QMIXNSConfig(hidden=32, cell="mingru")),
     "ippo-shared": (ippo, ippo.IPPOConfig(hidden=32)),
     "mappo-per-agent": (mappo, mappo.MAPPOConfig(hidden=32, shared=False, activation="relu")),
 }
 ALGO = {"vdn-gru-shared": "vdn", "qmix-ff-shared": "qmix", "qmix_ns-gru": "qmix_ns", "ippo-shared": "ippo",
-        "mappo-per-agent": "mappo"}
+        "mappo-per-agent": "mappo", "vdn-mingru-shared": "vdn", "qmix_ns-mingru": "qmix_ns"}
 
 
 def _params(module, cfg, env, seed=0):
@@ -107,3 +109,8 @@ def test_bad_policy_folders_are_reported(tmp_path):
                                                       "obs_dim": 10, "shared": True, "agent_ids": True}, {})
     with pytest.raises(ValueError, match=r"observations must be \[..., 4, 10\]"):
         policy.inputs(np.zeros((3, 10)))
+    q_agent = {"format": "marbler-jax-policy/1", "kind": "q_agent", "recurrent": True, "num_agents": 4,
+               "obs_dim": 10, "hidden": 8, "shared": True, "agent_ids": True}
+    assert NumpyPolicy(q_agent, {}).cell == "gru"               # folders written before `cell` existed
+    with pytest.raises(ValueError, match="unsupported recurrent cell 'lstm'"):
+        NumpyPolicy(dict(q_agent, cell="lstm"), {})

@@ -1,13 +1,16 @@
-"""Network initialisation: the vmap-safe orthogonal initializer (jaxlib 0.10.2 CPU QR hang)."""
+"""Networks: the vmap-safe orthogonal initializer (jaxlib 0.10.2 CPU QR hang) and the Q-agents'
+whole-sequence path (equal to stepping them)."""
 from __future__ import annotations
 
 import flax.linen as nn
 import jax
+import jax.numpy as jnp
 import numpy as np
+import pytest
 
 import marbler_jax
 from algorithms.driver import ALGORITHMS, build_config
-from algorithms.networks import orthogonal
+from algorithms.networks import QAgent, apply_agents, init_agents, orthogonal
 
 
 def _qr_operand_shapes(jaxpr, found):
@@ -46,3 +49,34 @@ def test_vmapped_inits_never_hand_lapack_a_batch_of_matrices():
         assert all(len(s) == 2 for s in shapes), f"{algo}: batched QR operands {sorted(set(shapes))}"
     unsafe = jax.make_jaxpr(jax.vmap(lambda k: nn.initializers.orthogonal()(k, (4, 4))))(keys).jaxpr
     assert _qr_operand_shapes(unsafe, []) == [(3, 4, 4)]   # the walker does see batched QRs
+
+
+@pytest.mark.parametrize("cell", ["mingru", "none"])
+@pytest.mark.parametrize("shared", [True, False])
+def test_q_agent_sequence_equals_stepping_with_resets(cell, shared):
+    """``QAgent.sequence`` (one matmul per layer for all steps + an elementwise scan) gives the
+    Q-values of stepping ``__call__`` one step at a time, memory zeroed where ``reset``."""
+    agent = QAgent(num_actions=5, hidden=16, cell=cell)
+    n, d, steps, batch = 3, 7, 12, 4
+    sample = (agent.initial_hidden((1,))[0], jnp.zeros((d,)), jnp.zeros((1,), bool))
+    params = init_agents(agent, jax.random.PRNGKey(0), sample, n, shared)
+    obs = jax.random.normal(jax.random.PRNGKey(1), (steps, batch, n, d))
+    reset = jax.random.uniform(jax.random.PRNGKey(2), (steps, batch, n, 1)) < 0.2
+    whole = apply_agents(agent, params, obs, reset, shared=shared, method=QAgent.sequence)
+    hidden, stepped = agent.initial_hidden((batch, n)), []
+    for t in range(steps):
+        hidden, q = apply_agents(agent, params, hidden, obs[t], reset[t], shared=shared)
+        stepped.append(q)
+    np.testing.assert_allclose(whole, np.stack(stepped), rtol=1e-5, atol=1e-5)
+    if cell == "mingru":     # the memory matters: without the resets the values differ
+        no_reset = apply_agents(agent, params, obs, jnp.zeros_like(reset), shared=shared, method=QAgent.sequence)
+        assert np.abs(np.asarray(no_reset) - np.asarray(whole)).max() > 1e-3
+
+
+def test_unknown_q_agent_cell_is_reported():
+    with pytest.raises(ValueError, match=r"cell must be one of \['gru', 'mingru', 'none'\], got 'lstm'"):
+        QAgent(num_actions=5, cell="lstm").init(jax.random.PRNGKey(0), jnp.zeros((4,)), jnp.zeros((3,)),
+                                                 jnp.zeros((1,), bool))
+    with pytest.raises(ValueError, match="QAgent.sequence is for cell='mingru' or 'none'"):
+        QAgent(num_actions=5).init(jax.random.PRNGKey(0), jnp.zeros((2, 3)), jnp.zeros((2, 1), bool),
+                                   method=QAgent.sequence)

@@ -160,9 +160,10 @@ def test_qmix_learns_simple_navigation():
 
 
 def test_qmix_ns_learns_simple_navigation():
+    # per-agent minimal-GRU agents (the whole-sequence path vmapped over agents)
     cfg = dict(FAST, lr=5e-4, eps_decay_steps=50_000)
     _learns(qmix, qmix.QMIXNSConfig(total_timesteps=150_000, train_steps=8, target_update_interval=50,
-                                    recurrent=False, **cfg))
+                                    cell="mingru", **cfg))
 
 
 # VDN's bit-exact resume with its replay buffer (GRU agents, two seeds) is tested with two learner devices in
