@@ -16,6 +16,7 @@ import jax
 import numpy as np
 
 from algorithms.driver import flatten_params, select_seed
+from algorithms.networks import QAgent
 from marbler_jax.deploy.bundle import replace_folder, write_bundle
 from marbler_jax.numpy_policy import FORMAT, SPEC_FILE, NumpyPolicy
 
@@ -26,12 +27,13 @@ def policy_tensors(algo: str, cfg, params) -> tuple[dict, dict]:
     if algo in ("ippo", "mappo"):
         actor = params["params"]["actor"]
         layers = sorted(actor, key=lambda name: int(name.split("_")[-1]))
-        fields = dict(kind="actor", recurrent=False, hidden=cfg.hidden, activation=cfg.activation,
+        fields = dict(kind="actor", recurrent=False, cell="none", hidden=cfg.hidden, activation=cfg.activation,
                       layers=[f"actor.{name}" for name in layers])
         return fields, _float32(flatten_params({"actor": actor}, "."))
     agent = params["agent"]["params"]
-    fields = dict(kind="q_agent", recurrent=cfg.recurrent, cell=cfg.cell if cfg.recurrent else "none",
-                  hidden=cfg.hidden, activation="relu", layers=[])
+    memory = QAgent(1, cfg.hidden, cfg.recurrent, cfg.cell).memory
+    fields = dict(kind="q_agent", recurrent=memory != "none", cell=memory, hidden=cfg.hidden, activation="relu",
+                  layers=[])
     return fields, _float32(flatten_params(agent, "."))
 
 

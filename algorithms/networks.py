@@ -21,6 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from marbler_jax.numpy_policy import CELLS
+
 
 # PyTorch's ``nn.Linear`` default kernel init, U(-1/sqrt(fan_in), 1/sqrt(fan_in)): a third of flax's
 # default (lecun_normal) variance. EPyMARL's QMIX mixer is initialised this way (see algorithms.qmix).
@@ -171,9 +173,6 @@ class QAgent(nn.Module):
         """Zero hidden state ``[*batch_shape, H]`` (``[*batch_shape, 1]`` for feed-forward agents)."""
         width = 1 if self.memory == "none" else self.hidden
         return jnp.zeros(tuple(batch_shape) + (width,), jnp.float32)
-
-
-CELLS = ("gru", "mingru", "none")
 
 
 def with_agent_ids(obs):

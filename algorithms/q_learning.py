@@ -46,7 +46,8 @@ from algorithms import buffer as episode_buffer
 from algorithms.common import episode_info, rollout_metrics
 from algorithms.data_parallel import split_batch
 from algorithms.ippo import global_state
-from algorithms.networks import CELLS, QAgent, apply_agents, init_agents, with_agent_ids
+from algorithms.networks import QAgent, apply_agents, init_agents, with_agent_ids
+from marbler_jax.numpy_policy import CELLS
 from marbler_jax.rollout import StatefulPolicy
 
 

@@ -184,10 +184,7 @@ def _train(args) -> int:
     return 0
 
 
-def _memory_name(spec: dict) -> str:
-    if not spec["recurrent"]:
-        return "feed-forward"
-    return {"gru": "GRU", "mingru": "minimal GRU"}[spec.get("cell", "gru")]
+_MEMORY_NAMES = {"gru": "GRU", "mingru": "minimal GRU", "none": "feed-forward"}
 
 
 def _export(args) -> int:
@@ -199,7 +196,7 @@ def _export(args) -> int:
 
     files = sorted(p.name for p in Path(args.out).iterdir())
     size = folder_size(args.out)
-    print(f"exported {spec['algo']} ({spec['kind']}, {_memory_name(spec)}, "
+    print(f"exported {spec['algo']} ({spec['kind']}, {_MEMORY_NAMES[spec['cell']]}, "
           f"{'shared' if spec['shared'] else 'per-agent'} parameters) for {spec['scenario']} to {args.out}: "
           f"{len(files)} files, {size / 1024:.1f} KiB")
     print("load with numpy only: from marbler_jax.numpy_policy import load_policy; "

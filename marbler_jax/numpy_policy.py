@@ -31,6 +31,7 @@ import numpy as np
 
 FORMAT = "marbler-jax-policy/1"
 SPEC_FILE = "policy_spec.npy"
+CELLS = ("gru", "mingru", "none")      # a Q-agent's memory (algorithms.networks.QAgent uses the same names)
 
 
 def _sigmoid(x):
@@ -49,9 +50,9 @@ class NumpyPolicy:
         self.obs_dim = int(spec["obs_dim"])
         self.recurrent = bool(spec["kind"] == "q_agent" and spec["recurrent"])
         self.cell = spec.get("cell", "gru") if self.recurrent else "none"
-        if self.cell not in ("gru", "mingru", "none"):
+        if self.cell not in CELLS:
             raise ValueError(f"unsupported recurrent cell {self.cell!r} in the policy spec; "
-                             "expected gru, mingru or none")
+                             f"expected one of {list(CELLS)}")
 
     def initial_hidden(self) -> np.ndarray:
         """Zero memory ``[N, H]`` (``[N, 1]`` for memoryless policies)."""
@@ -123,4 +124,4 @@ def load_policy(folder) -> NumpyPolicy:
     return NumpyPolicy(spec, tensors)
 
 
-__all__ = ["NumpyPolicy", "load_policy", "FORMAT", "SPEC_FILE"]
+__all__ = ["NumpyPolicy", "load_policy", "FORMAT", "SPEC_FILE", "CELLS"]
