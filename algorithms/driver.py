@@ -1,8 +1,9 @@
 """Training driver: run an algorithm on a scenario, evaluate greedily, write the run folder.
 
 A run folder holds ``config.json``, ``metrics.jsonl`` (one line per update: env steps, return mean
-and std over seeds, episode length, collision / out-of-bounds rates), ``learning_curve.png``,
-orbax checkpoints (``checkpoints/`` last k, ``best/``), ``params.npz`` (the final parameters,
+and std over seeds, episode length, collision / out-of-bounds rates; the greedy test return on the
+last line of each chunk), ``learning_curve.png``, orbax checkpoints (``checkpoints/`` last k,
+``best/`` by greedy test return), ``params.npz`` (the final parameters,
 seed-major) and ``evaluation.json``. Every file is written to a temporary name and renamed (orbax
 does the same for checkpoints), so an interrupted run never leaves a half-written file, and
 ``resume=True`` continues it bit-exactly.
@@ -17,13 +18,14 @@ import time
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 import marbler_jax
 from marbler_jax.registry import canonical_name
 from algorithms import ippo, mappo, qmix, vdn
 from algorithms.hang_guard import HangGuard, hang_message
-from marbler_jax.rollout import episode_stats, make_rollout
+from marbler_jax.rollout import batched_rollout, episode_stats, make_rollout
 
 # name -> (config class, make_train(env, cfg), greedy_policy(env, cfg, params))
 ALGORITHMS = {
@@ -68,11 +70,27 @@ def evaluate(env, policy, episodes: int, key) -> dict:
 SEED_BATCHING = {"vmap": lambda fn, xs: jax.vmap(fn)(xs), "map": jax.lax.map}
 
 
+def make_tester(env, greedy_of_params, episodes: int, over_seeds=SEED_BATCHING["vmap"]):
+    """Jitted ``(params [S, ...], keys [S, 2]) -> [S]``: each seed's mean greedy return over the first
+    episode of ``episodes`` batched envs (fresh initial states from that seed's key). Every episode
+    ends within ``env.max_steps`` steps, so each env contributes exactly one return."""
+    if episodes < 1:
+        raise ValueError(f"test episodes must be >= 1 (or 0 for no test), got {episodes}")
+
+    def one(args):
+        params, key = args
+        _, (_, done, info) = batched_rollout(env, key, episodes, env.max_steps, greedy_of_params(params))
+        first = jnp.argmax(done, axis=0)
+        return jnp.mean(info["episode_return"][first, jnp.arange(episodes)])
+
+    return jax.jit(lambda params, keys: over_seeds(one, (params, keys)))
+
+
 def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Path,
           env_overrides: dict | None = None, hp: dict | None = None, eval_episodes: int = 256,
           checkpoint_every: int | None = None, keep: int = 3, resume: bool = False, seed: int = 0,
           progress: bool = True, on_chunk=None, log=print, seed_batching: str = "vmap",
-          on_hang=None, hang_seconds: float = 120.0) -> dict:
+          on_hang=None, hang_seconds: float = 120.0, test_episodes: int = 64) -> dict:
     """Train ``seeds`` seeds in one jitted program, in chunks of ``checkpoint_every`` updates.
 
     ``seed_batching="vmap"`` (default) vectorizes the seeds (``jax.vmap``: one batch of
@@ -85,9 +103,15 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     warning through ``log``; the CLI restarts itself with ``--resume``). ``hang_seconds=0`` turns
     the watcher off.
 
-    After every chunk the runner state (parameters, optimiser, envs, keys) is saved with orbax
-    (``checkpoints/``, the last ``keep``; ``best/`` holds the parameters with the best mean return),
-    then ``metrics.jsonl`` and the learning curve are rewritten atomically. ``resume=True`` continues
+    After every chunk the parameters are tested greedily (``test_episodes`` episodes per seed, the
+    same initial states at every test so that checkpoints are compared on equal terms; MARBLER and
+    EPyMARL keep the model with the best greedy test return) and the runner state (parameters,
+    optimiser, envs, keys) is saved with orbax (``checkpoints/``, the last ``keep``; ``best/`` holds
+    the parameters with the best test return, mean over seeds; with ``test_episodes=0`` the best
+    mean training return of a chunk's updates, which are epsilon-greedy or sampled), then
+    ``metrics.jsonl`` (the test return on each chunk's last line) and the learning curve are
+    rewritten atomically. The tests draw no training randomness: a run trains the same with or
+    without them. ``resume=True`` continues
     from the latest checkpoint bit-exactly (same final parameters as an uninterrupted run).
     ``on_chunk(update)`` is called after each chunk is saved (tests use it to simulate interruptions).
     """
@@ -102,17 +126,20 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     if seed_batching not in SEED_BATCHING:
         raise ValueError(f"seed_batching must be one of {list(SEED_BATCHING)}, got {seed_batching!r}")
     over_seeds = SEED_BATCHING[seed_batching]
+    if test_episodes < 0:
+        raise ValueError(f"test_episodes must be >= 0 (0 = no greedy test), got {test_episodes}")
     _, make_train, greedy = ALGORITHMS[algo]
     out = Path(out).absolute()
     out.mkdir(parents=True, exist_ok=True)
     config = dict(scenario=scenario, algo=algo, seeds=seeds, seed=seed, env=dataclasses.asdict(env.config),
-                  algorithm=dataclasses.asdict(cfg))
+                  algorithm=dataclasses.asdict(cfg), test_episodes=test_episodes)
     config_json = json.dumps(config, indent=2)
     checkpoints = out / "checkpoints"
     if resume:
         if not (out / "config.json").exists():
             raise ValueError(f"--resume: {out} has no config.json (nothing to resume)")
         saved = json.loads((out / "config.json").read_text())
+        saved.setdefault("test_episodes", 0)       # run folders from before the greedy tests
         if saved != json.loads(config_json):
             diff = sorted(k for k in config if saved.get(k) != config[k])
             raise ValueError(f"--resume: the settings differ from the saved run in {diff}; use the same arguments")
@@ -137,8 +164,11 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
             lines = [line for line in (out / "metrics.jsonl").read_text().splitlines()
                      if line.strip() and json.loads(line)["update"] <= done]
         log(f"resuming from update {done} of {num_updates}")
-    best = max((json.loads(line)["return_mean"] for line in lines
-                if json.loads(line)["return_mean"] is not None), default=-np.inf)
+    score_name = "test_return_mean" if test_episodes else "return_mean"
+    best = max((json.loads(line)[score_name] for line in lines
+                if json.loads(line).get(score_name) is not None), default=-np.inf)
+    tester = make_tester(env, lambda p: greedy(env, cfg, p), test_episodes, over_seeds) if test_episodes else None
+    test_keys = jax.random.split(jax.random.PRNGKey(seed + 7919), seeds)   # apart from the training keys
     chunk = checkpoint_every or max(1, num_updates // 10)
     run_fns = {}
     if on_hang is None:
@@ -160,6 +190,8 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         with guard():
             runner, metrics = jax.block_until_ready(run_fns[n](runner))
         chunk_s = time.perf_counter() - t0
+        with guard():
+            test = np.asarray(tester(runner["params"], test_keys)) if tester else None
         metrics = jax.tree_util.tree_map(np.asarray, metrics)
         for i in range(n):
             ret = metrics["return"][:, i]
@@ -170,6 +202,10 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
                 collision_rate=_nan_stat(np.nanmean, metrics["collision_rate"][:, i]),
                 out_of_bounds_rate=_nan_stat(np.nanmean, metrics["out_of_bounds_rate"][:, i]),
                 sps=seeds * n * steps_per_update / chunk_s)))
+        if test is not None:     # the parameters at the chunk's end, i.e. after its last update
+            last = json.loads(lines[-1])
+            lines[-1] = json.dumps(dict(last, test_return_mean=_nan_stat(np.nanmean, test),
+                                        test_return_std=_nan_stat(np.nanstd, test)))
         if board is not None:
             for line in lines[-n:]:
                 row = json.loads(line)
@@ -185,14 +221,18 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         manager.wait_until_finished()
         recent = [json.loads(line)["return_mean"] for line in lines[-n:]]
         recent = [r for r in recent if r is not None]
-        if recent and np.mean(recent) > best:
-            best = float(np.mean(recent))
+        score = json.loads(lines[-1])["test_return_mean"] if test is not None else (
+            float(np.mean(recent)) if recent else None)
+        if score is not None and score > best:
+            best = score
             best_manager.save(done, args=ocp.args.StandardSave(host["params"]), force=True)
             best_manager.wait_until_finished()
         atomic_write(out / "metrics.jsonl", "\n".join(lines) + "\n")
         plot_learning_curve(out / "metrics.jsonl", out / "learning_curve.png", f"{algo} on {scenario}")
         bar.update(n)
-        bar.set_postfix(ret=f"{recent[-1]:.2f}" if recent else "n/a", sps=f"{seeds * n * steps_per_update / chunk_s:,.0f}")
+        bar.set_postfix(ret=f"{recent[-1]:.2f}" if recent else "n/a",
+                        **({"test": f"{float(np.mean(test)):.2f}"} if test is not None else {}),
+                        sps=f"{seeds * n * steps_per_update / chunk_s:,.0f}")
         if on_chunk is not None:
             on_chunk(done)
     bar.close()
@@ -206,7 +246,8 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     trained = evaluate(env, greedy(env, cfg, first), eval_episodes, key)
     random = evaluate(env, None, eval_episodes, key)
     result = dict(trained=trained, random=random, train_seconds=seconds,
-                  env_steps_per_s=seeds * num_updates * steps_per_update / max(seconds, 1e-9), best_return=best)
+                  env_steps_per_s=seeds * num_updates * steps_per_update / max(seconds, 1e-9), best_return=best,
+                  best_by="greedy test return" if test_episodes else "training return")
     atomic_write(out / "evaluation.json", json.dumps(result, indent=2))
     log(f"trained in {seconds:.1f} s ({result['env_steps_per_s']:,.0f} env-steps/s including learning)")
     log(f"greedy return {trained['return']:.2f} vs random {random['return']:.2f}; "
@@ -292,8 +333,13 @@ def plot_learning_curve(metrics_path: Path, png: Path, title: str) -> None:
     mean = np.array([r["return_mean"] for r in rows])
     std = np.array([r["return_std"] or 0.0 for r in rows])
     fig, ax = plt.subplots(figsize=(6, 3.6))
-    ax.plot(steps, mean, lw=1.5)
+    ax.plot(steps, mean, lw=1.5, label="training")
     ax.fill_between(steps, mean - std, mean + std, alpha=0.25)
+    tests = [r for r in rows if r.get("test_return_mean") is not None]
+    if tests:
+        ax.plot([r["env_steps"] for r in tests], [r["test_return_mean"] for r in tests], "o-", ms=3, lw=1,
+                label="greedy test")
+        ax.legend(loc="lower right")
     ax.set_xlabel("env steps")
     ax.set_ylabel("episode return (team)")
     ax.set_title(title)

@@ -2,6 +2,8 @@
 checkpoint round trip, and refusal to mix runs."""
 from __future__ import annotations
 
+import json
+
 import jax
 import numpy as np
 import orbax.checkpoint as ocp
@@ -9,7 +11,7 @@ import pytest
 
 import marbler_jax
 from tests.helpers import interrupt_at
-from algorithms.driver import SEED_BATCHING, load_params, load_run, train
+from algorithms.driver import ALGORITHMS, SEED_BATCHING, load_params, load_run, make_tester, train
 from algorithms.ippo import IPPOConfig, make_train
 
 HP = dict(num_envs=8, num_steps=8, num_minibatches=2, update_epochs=1, hidden=16)
@@ -47,6 +49,15 @@ def test_interrupted_run_resumes_bit_exactly(tmp_path):
     for name in full:
         np.testing.assert_array_equal(full[name], cut[name], err_msg=name)
     assert (tmp_path / "cut" / "metrics.jsonl").read_text().count("\n") == 4
+    # the greedy test after every chunk picks the best checkpoint, also across the interruption
+    rows = [json.loads(line) for line in (tmp_path / "full" / "metrics.jsonl").read_text().splitlines()]
+    tests = [r["test_return_mean"] for r in rows]
+    assert all(np.isfinite(tests)) and len(set(tests)) > 1
+    best_step = rows[int(np.argmax(tests))]["update"]
+    for run in ("full", "cut"):
+        assert ocp.CheckpointManager(tmp_path / run / "best").latest_step() == best_step
+    evaluation = json.loads((tmp_path / "full" / "evaluation.json").read_text())
+    assert evaluation["best_by"] == "greedy test return" and evaluation["best_return"] == max(tests)
 
     # checkpoint round trip: the latest checkpoint restores the final parameters exactly
     manager = ocp.CheckpointManager(tmp_path / "full" / "checkpoints")
@@ -75,3 +86,36 @@ def test_vmapped_seeds_match_mapped_seeds(tmp_path):
     assert kernel.shape[0] == 2 and not np.allclose(kernel[0], kernel[1])
     with pytest.raises(ValueError, match=r"seed_batching must be one of \['vmap', 'map'\], got 'pmap'"):
         train("simple_navigation", "ippo", STEPS, 2, tmp_path / "bad", hp=HP, seed_batching="pmap", progress=False)
+
+
+def test_greedy_tests_do_not_change_training(tmp_path):
+    """The per-chunk greedy test (``test_episodes``) draws no training randomness: same parameters with
+    and without it; it reports the mean return of each seed's greedy episodes; bad counts are refused."""
+    common = dict(scenario="simple_navigation", algo="ippo", total_steps=STEPS, seeds=2, hp=HP, eval_episodes=8,
+                  checkpoint_every=2, progress=False, log=lambda *a: None)
+    train(out=tmp_path / "test", test_episodes=8, **common)
+    train(out=tmp_path / "none", test_episodes=0, **common)
+    with_test, without = np.load(tmp_path / "test" / "params.npz"), np.load(tmp_path / "none" / "params.npz")
+    for name in with_test:
+        np.testing.assert_array_equal(with_test[name], without[name], err_msg=name)
+    rows = [json.loads(line) for line in (tmp_path / "test" / "metrics.jsonl").read_text().splitlines()]
+    assert [r["update"] for r in rows if "test_return_mean" in r] == [2, 4]
+    assert not any("test_return_mean" in line for line in (tmp_path / "none" / "metrics.jsonl").read_text().splitlines())
+    # the final test equals a direct greedy rollout of each seed's final parameters
+    env = marbler_jax.make("simple_navigation")
+    cfg = IPPOConfig(total_timesteps=STEPS, **HP)
+    greedy = ALGORITHMS["ippo"][2]
+    params = load_params(tmp_path / "test" / "params.npz")
+    keys = jax.random.split(jax.random.PRNGKey(0 + 7919), 2)
+    per_seed = np.asarray(make_tester(env, lambda p: greedy(env, cfg, p), 8)(params, keys))
+    assert rows[-1]["test_return_mean"] == pytest.approx(float(per_seed.mean()), rel=1e-5)
+    assert rows[-1]["test_return_std"] == pytest.approx(float(per_seed.std()), rel=1e-4, abs=1e-5)
+    from marbler_jax.rollout import batched_rollout
+    seed0 = jax.tree_util.tree_map(lambda x: x[0], params)
+    _, (_, done, info) = batched_rollout(env, keys[0], 8, env.max_steps, greedy(env, cfg, seed0))
+    done, returns = np.asarray(done), np.asarray(info["episode_return"])
+    first = done.argmax(0)
+    assert done.any(0).all()
+    assert per_seed[0] == pytest.approx(returns[first, np.arange(8)].mean(), rel=1e-5)
+    with pytest.raises(ValueError, match="test_episodes must be >= 0"):
+        train(out=tmp_path / "bad", test_episodes=-1, **common)
