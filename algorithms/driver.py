@@ -25,7 +25,7 @@ import marbler_jax
 from marbler_jax.registry import canonical_name
 from algorithms import ippo, mappo, qmix, vdn
 from algorithms.hang_guard import HangGuard, hang_message
-from marbler_jax.rollout import batched_rollout, episode_stats, make_rollout
+from marbler_jax.rollout import at_first_done, batched_rollout, episode_stats, make_rollout
 
 # name -> (config class, make_train(env, cfg), greedy_policy(env, cfg, params))
 ALGORITHMS = {
@@ -80,8 +80,7 @@ def make_tester(env, greedy_of_params, episodes: int, over_seeds=SEED_BATCHING["
     def one(args):
         params, key = args
         _, (_, done, info) = batched_rollout(env, key, episodes, env.max_steps, greedy_of_params(params))
-        first = jnp.argmax(done, axis=0)
-        return jnp.mean(info["episode_return"][first, jnp.arange(episodes)])
+        return jnp.mean(at_first_done(done, info["episode_return"]))
 
     return jax.jit(lambda params, keys: over_seeds(one, (params, keys)))
 
@@ -192,6 +191,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         chunk_s = time.perf_counter() - t0
         with guard():
             test = np.asarray(tester(runner["params"], test_keys)) if tester else None
+        test_mean = _nan_stat(np.nanmean, test) if tester else None
         metrics = jax.tree_util.tree_map(np.asarray, metrics)
         for i in range(n):
             ret = metrics["return"][:, i]
@@ -202,10 +202,9 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
                 collision_rate=_nan_stat(np.nanmean, metrics["collision_rate"][:, i]),
                 out_of_bounds_rate=_nan_stat(np.nanmean, metrics["out_of_bounds_rate"][:, i]),
                 sps=seeds * n * steps_per_update / chunk_s)))
-        if test is not None:     # the parameters at the chunk's end, i.e. after its last update
+        if tester:     # the parameters at the chunk's end, i.e. after its last update
             last = json.loads(lines[-1])
-            lines[-1] = json.dumps(dict(last, test_return_mean=_nan_stat(np.nanmean, test),
-                                        test_return_std=_nan_stat(np.nanstd, test)))
+            lines[-1] = json.dumps(dict(last, test_return_mean=test_mean, test_return_std=_nan_stat(np.nanstd, test)))
         if board is not None:
             for line in lines[-n:]:
                 row = json.loads(line)
@@ -221,8 +220,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         manager.wait_until_finished()
         recent = [json.loads(line)["return_mean"] for line in lines[-n:]]
         recent = [r for r in recent if r is not None]
-        score = json.loads(lines[-1])["test_return_mean"] if test is not None else (
-            float(np.mean(recent)) if recent else None)
+        score = test_mean if tester else (float(np.mean(recent)) if recent else None)
         if score is not None and score > best:
             best = score
             best_manager.save(done, args=ocp.args.StandardSave(host["params"]), force=True)
@@ -231,7 +229,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         plot_learning_curve(out / "metrics.jsonl", out / "learning_curve.png", f"{algo} on {scenario}")
         bar.update(n)
         bar.set_postfix(ret=f"{recent[-1]:.2f}" if recent else "n/a",
-                        **({"test": f"{float(np.mean(test)):.2f}"} if test is not None else {}),
+                        **({"test": f"{test_mean:.2f}"} if test_mean is not None else {}),
                         sps=f"{seeds * n * steps_per_update / chunk_s:,.0f}")
         if on_chunk is not None:
             on_chunk(done)

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import marbler_jax
-from marbler_jax.rollout import make_rollout
+from marbler_jax.rollout import at_first_done, make_rollout
 
 # MARBLER paper, Table II, simulated experiments: (mean, std) per scenario / algorithm / metric.
 PAPER = {
@@ -55,11 +55,9 @@ def first_episodes(env, traj) -> dict[str, np.ndarray]:
     done = np.asarray(done)
     if not done.any(axis=0).all():
         raise ValueError("every env must finish an episode; roll out at least env.max_steps steps")
-    first = done.argmax(axis=0)
-    cols = np.arange(done.shape[1])
 
     def at(key):
-        return np.asarray(info[key])[first, cols]
+        return np.asarray(at_first_done(done, np.asarray(info[key])))
 
     steps = np.where(at("violation"), env.max_steps, at("steps"))
     out = {"reward": at("episode_return"), "steps": steps.astype(float),

@@ -59,6 +59,13 @@ def make_rollout(env, num_envs: int, num_steps: int, policy: Callable | None = N
     return jax.jit(lambda key: batched_rollout(env, key, num_envs, num_steps, policy))
 
 
+def at_first_done(done, x):
+    """``x [T, E, ...]`` at the step where each env's first episode ended (``done [T, E]``), ``[E, ...]``;
+    numpy or JAX arrays (jittable). An env that never finished reads step 0: check ``done.any(0)``."""
+    first = done.argmax(axis=0)
+    return x[first, jnp.arange(done.shape[1])]
+
+
 def episode_stats(traj) -> dict[str, float]:
     """Mean metrics over the episodes that finished in a rollout trajectory."""
     rewards, done, info = traj
