@@ -5,7 +5,9 @@ MT 4, AT 4; strict "safe" CBF; penalties and termination on violations), MARBLER
 loop (the controller and CBF recomputed every ``control_period = 15`` ticks) and the EPyMARL settings
 of MARBLER's model files (``../shared/spec/scenarios.md`` E.2): GRU agents, gamma 0.99, buffer 5000
 episodes, batch 32 episodes, epsilon 1 -> 0.05 over 50k steps, one gradient step per collected
-episode (here 8 episodes and 8 gradient steps per update), 5M env steps (MAPPO 25M). It is slow on
+episode (here 8 episodes and 8 gradient steps per update), Adam (EPyMARL's ``QLearner`` builds
+``torch.optim.Adam``; the model files' ``optim_alpha``/``optim_eps`` are PyMARL's unused RMSprop
+leftovers), 5M env steps (MAPPO 25M). It is slow on
 a CPU by design (GRU-128 gradient steps dominate: ~1k env-steps/s).
 
 ``"fast"`` (the default of ``marbler-jax train``) is our CPU setting: the same env, smaller GRUs
@@ -28,13 +30,13 @@ _PAPER_ENV = {"control_period": 15}
 _PAPER_HP = {
     "vdn": dict(hidden=128, lr=3e-4, target_update_interval=200, max_grad_norm=10.0, gamma=0.99,
                 buffer_size=5000, batch_size=32, num_envs=8, train_steps=8, eps_decay_steps=50_000,
-                learning_starts=32 * 81, optimizer="rmsprop"),
+                learning_starts=32 * 81),
     "qmix": dict(hidden=128, lr=1e-4, tau=0.01, mixer_embed=32, hypernet_hidden=64, max_grad_norm=10.0,
                  gamma=0.99, buffer_size=5000, batch_size=32, num_envs=8, train_steps=8,
-                 eps_decay_steps=50_000, learning_starts=32 * 81, optimizer="rmsprop"),
+                 eps_decay_steps=50_000, learning_starts=32 * 81),
     "qmix_ns": dict(hidden=64, lr=5e-4, target_update_interval=200, max_grad_norm=10.0, gamma=0.99,
                     buffer_size=5000, batch_size=32, num_envs=8, train_steps=8, eps_decay_steps=50_000,
-                    learning_starts=32 * 81, optimizer="rmsprop"),
+                    learning_starts=32 * 81),
     "mappo": dict(hidden=128, lr=2e-4, update_epochs=4, clip_eps=0.2, ent_coef=0.01, num_envs=64, num_steps=64),
     "ippo": dict(hidden=128, lr=2e-4, update_epochs=4, clip_eps=0.2, ent_coef=0.01, num_envs=64, num_steps=64),
 }

@@ -128,7 +128,7 @@ def ippo_simple_nav_run(tmp_path_factory):
 
     def build(folder):
         train("simple_navigation", "ippo", 150_000, 1, folder / "run", hp={"num_envs": 64, "num_steps": 64, "lr": 1e-3},
-              eval_episodes=256, progress=False, log=lambda *a, **k: None)
+              eval_episodes=256, test_episodes=16, progress=False, log=lambda *a, **k: None)
 
     return build_once(tmp_path_factory, "ippo-sn", build) / "run"
 

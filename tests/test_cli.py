@@ -66,7 +66,7 @@ def test_train_vdn_then_evaluate_best_checkpoint(tmp_path, capsys):
     code = main(["train", "--scenario", "predator_capture_prey", "--algo", "vdn", "--total-steps", "1296",
                  "--seeds", "2", "--out", str(out), "--no-progress", "--hp", "num_envs=8", "--hp", "hidden=16",
                  "--hp", "learning_starts=0", "--hp", "buffer_size=32", "--hp", "batch_size=4",
-                 "--checkpoint-every", "1"])
+                 "--checkpoint-every", "1", "--test-episodes", "8"])
     assert code == 0
     config = json.loads((out / "config.json").read_text())
     assert config["env"]["control_period"] == 15 and config["algorithm"]["train_steps"] == 32   # fast preset

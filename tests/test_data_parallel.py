@@ -47,7 +47,7 @@ TWO_DEVICES = textwrap.dedent("""
     hp = dict(num_envs=4, num_steps=8, buffer_size=16, batch_size=4, learning_starts=0, hidden=16, train_steps=2,
               target_update_interval=3, learner_devices=2)
     common = dict(scenario="predator_capture_prey", algo="vdn", total_steps=4 * 4 * 8, seeds=2, hp=hp,
-                  eval_episodes=4, checkpoint_every=1, progress=False, log=lambda *a: None)
+                  eval_episodes=4, checkpoint_every=1, progress=False, log=lambda *a: None, test_episodes=0)
     train(out=root + "/full", **common)
     with pytest.raises(KeyboardInterrupt):
         train(out=root + "/cut", on_chunk=interrupt_at(2), **common)

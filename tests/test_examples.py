@@ -64,7 +64,8 @@ def test_coverage_is_safe_under_the_certificate_and_trainable():
 def test_coverage_trains_from_the_cli_and_exports_a_jax_free_bundle(tmp_path):
     run = tmp_path / "run"
     assert main(["train", "--scenario", os.path.relpath(SPEC.rsplit(":", 1)[0]) + ":Coverage", "--total-steps",
-                 "1024", "--out", str(run), "--no-progress", "--hp", "num_envs=8", "--hp", "num_steps=16"]) == 0
+                 "1024", "--out", str(run), "--no-progress", "--hp", "num_envs=8", "--hp", "num_steps=16",
+                 "--test-episodes", "4"]) == 0
     config = json.loads((run / "config.json").read_text())
     assert config["scenario"] == SPEC                      # stored with an absolute path: loads from anywhere
     env, _ = load_run(run)

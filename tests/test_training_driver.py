@@ -33,7 +33,7 @@ def test_chunked_run_matches_one_shot():
 
 def test_interrupted_run_resumes_bit_exactly(tmp_path):
     common = dict(scenario="warehouse", algo="ippo", total_steps=STEPS, seeds=2, hp=HP, eval_episodes=8,
-                  checkpoint_every=1, progress=False, log=lambda *a: None)
+                  checkpoint_every=1, progress=False, log=lambda *a: None, test_episodes=16)
     train(out=tmp_path / "full", **common)
 
     with pytest.raises(KeyboardInterrupt):

@@ -1,0 +1,41 @@
+"""Training presets: ``paper`` holds the settings of MARBLER's EPyMARL model files (spec E.2)."""
+from __future__ import annotations
+
+import pytest
+
+from algorithms.driver import build_config
+from algorithms.presets import PRESET_NAMES, preset
+
+
+def paper(algo: str):
+    env, hp, steps = preset("paper", "predator_capture_prey", algo)
+    return env, build_config(algo, hp), steps
+
+
+def test_paper_value_based_presets_are_epymarls_model_files():
+    env, vdn, steps = paper("vdn")
+    assert env == {"control_period": 15} and steps == 5_000_000
+    assert (vdn.hidden, vdn.lr, vdn.target_update_interval, vdn.tau) == (128, 3e-4, 200, 1.0)
+    _, qmix, _ = paper("qmix")
+    assert (qmix.hidden, qmix.lr, qmix.tau, qmix.mixer_embed, qmix.hypernet_hidden) == (128, 1e-4, 0.01, 32, 64)
+    _, qmix_ns, _ = paper("qmix_ns")
+    assert (qmix_ns.hidden, qmix_ns.lr, qmix_ns.target_update_interval, qmix_ns.shared) == (64, 5e-4, 200, False)
+    for cfg in (vdn, qmix, qmix_ns):
+        # EPyMARL: buffer 5000 episodes, batch 32, one gradient step per collected episode, epsilon 1 -> 0.05
+        # over 50k env steps, gamma 0.99, clip 10, double Q, raw rewards, and Adam (its QLearner builds
+        # torch.optim.Adam; the model files' optim_alpha/optim_eps are unused RMSprop leftovers)
+        assert (cfg.buffer_size, cfg.batch_size, cfg.train_steps, cfg.num_envs) == (5000, 32, 8, 8)
+        assert (cfg.eps_start, cfg.eps_finish, cfg.eps_decay_steps) == (1.0, 0.05, 50_000)
+        assert (cfg.gamma, cfg.max_grad_norm, cfg.double_q, cfg.reward_norm) == (0.99, 10.0, True, "none")
+        assert cfg.optimizer == "adam" and cfg.recurrent and cfg.cell == "gru" and cfg.td_lambda == 0.0
+    assert vdn.agent_ids and qmix.agent_ids      # obs_agent_id: True for the shared models
+
+
+def test_paper_mappo_preset_and_unknown_names():
+    _, mappo, steps = paper("mappo")
+    assert (mappo.hidden, mappo.lr, mappo.update_epochs, mappo.clip_eps, mappo.ent_coef) == (128, 2e-4, 4, 0.2, 0.01)
+    assert steps == 25_000_000
+    assert preset("none", "warehouse", "vdn") == ({}, {}, 1_000_000)
+    assert set(PRESET_NAMES) == {"fast", "paper", "none"}
+    with pytest.raises(ValueError, match=r"unknown preset 'epymarl'; available: \['fast', 'paper', 'none'\]"):
+        preset("epymarl", "warehouse", "vdn")
