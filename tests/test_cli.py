@@ -1,9 +1,22 @@
 """The command line: subcommands run end to end and bad input gets a clear error."""
 from __future__ import annotations
 
+import importlib.util
+from pathlib import Path
+
 import imageio.v2 as imageio
+import pytest
 
 from marbler_jax.cli import main, parse_overrides
+
+
+def load_script(name: str):
+    """A module of ``scripts/`` (not a package) loaded from its file."""
+    path = Path(__file__).resolve().parents[1] / "scripts" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def test_list(capsys):
@@ -82,6 +95,25 @@ def test_train_vdn_then_evaluate_best_checkpoint(tmp_path, capsys):
     assert "33.25 ± 0.46" in capsys.readouterr().out
     assert main(["evaluate", str(tmp_path / "missing")]) == 2
     assert "is not a run folder" in capsys.readouterr().err
+    # scripts/pcp_failures.py: every episode is a success, a violation or a timeout with prey left
+    failures = load_script("pcp_failures")
+    assert failures.main([str(out), "--episodes", "6", "--eps", "0.5", "--out", str(tmp_path / "f.json")]) == 0
+    rows = json.loads((tmp_path / "f.json").read_text())
+    assert set(rows) == {"eps=0", "eps=0.5"}
+    for row in rows.values():
+        assert row["success"] + row["violation"] + row["timeout"] == pytest.approx(1.0)
+        assert 0 <= row["sensed_share_of_left"] <= 1
+    # the breakdown plays the same greedy episodes as evaluate does from the same key
+    import jax
+    import numpy as np
+
+    from algorithms.evaluate import greedy_episodes
+
+    env, policy = failures.load_policy(out)
+    played = failures.play(env, policy, 6, jax.random.PRNGKey(5))
+    reference = greedy_episodes(env, policy, 6, jax.random.PRNGKey(5))
+    np.testing.assert_allclose(played["ret"], reference["reward"], rtol=1e-6)
+    assert rows["eps=0"]["return_mean"] == pytest.approx(float(reference["reward"].mean()), rel=1e-5)
     # the recurrent greedy policy of the best checkpoint, two episodes side by side
     gif = tmp_path / "vdn.gif"
     assert main(["render", str(out), "--out", str(gif), "--checkpoint", "best", "--envs", "2", "--no-progress"]) == 0

@@ -1,0 +1,104 @@
+"""Why a Predator Capture Prey policy loses reward: a breakdown of its greedy episodes.
+
+    python scripts/pcp_failures.py runs/pcp-vdn --episodes 500 [--seed-index 0] [--eps 0.01 0.05] [--out f.json]
+
+Plays ``--episodes`` greedy episodes (one per batched env, fresh initial states) with the run's best
+checkpoint and reads the prey flags of the state each episode's last step started from. Reports the
+share of episodes that capture every prey (and their mean length), that end by a violation, and that
+time out with prey left -- split into prey that had been sensed (the blind capture robots knew of them
+through the predators) and prey never sensed. ``--eps`` replays the same initial states with that
+share of random actions, to see whether exploration noise breaks the failures (RESULTS.md).
+A prey sensed on the very last step counts as never sensed (the flags are read before that step).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import marbler_jax  # noqa: E402
+from algorithms.driver import ALGORITHMS  # noqa: E402
+from algorithms.evaluate import restore_params  # noqa: E402
+from marbler_jax.rollout import StatefulPolicy, at_first_done  # noqa: E402
+
+
+def play(env, policy, episodes: int, key, eps: float = 0.0) -> dict[str, np.ndarray]:
+    """Each env's first episode: return, steps, violation, prey left, sensed-but-uncaptured prey."""
+    key_reset, key_run = jax.random.split(key)
+    obs, state = jax.vmap(env.reset)(jax.random.split(key_reset, episodes))
+
+    def body(carry, key_t):
+        obs, state, memory, reset = carry
+        key_act, key_noise, key_pick, key_step = jax.random.split(key_t, 4)
+        actions, memory = policy.step(key_act, obs, memory, reset)
+        noise = jax.random.randint(key_noise, actions.shape, 0, env.num_actions, actions.dtype)
+        actions = jnp.where(jax.random.uniform(key_pick, actions.shape) < eps, noise, actions)
+        flags = state.scenario.sensed & ~state.scenario.captured
+        obs, state, _, done, info = jax.vmap(env.step)(jax.random.split(key_step, episodes), state, actions)
+        record = dict(done=done, sensed_left=jnp.sum(flags, -1), prey_left=info["prey_left"],
+                      ret=info["episode_return"], steps=info["steps"],
+                      violation=info["episode_collided"] | info["episode_out_of_bounds"])
+        return (obs, state, memory, done), record
+
+    start = (obs, state, policy.initial_carry((episodes,)), jnp.ones((episodes,), bool))
+    _, trace = jax.lax.scan(body, start, jax.random.split(key_run, env.max_steps))
+    trace = jax.tree_util.tree_map(np.asarray, trace)
+    return {k: at_first_done(trace["done"], v) for k, v in trace.items() if k != "done"}
+
+
+def breakdown(ep: dict[str, np.ndarray]) -> dict[str, float]:
+    success = ~ep["violation"] & (ep["prey_left"] == 0)
+    timeout = ~ep["violation"] & (ep["prey_left"] > 0)
+    left = max(float(ep["prey_left"][timeout].sum()), 1.0)
+    return dict(return_mean=float(ep["ret"].mean()), success=float(success.mean()),
+                success_steps=float(ep["steps"][success].mean()) if success.any() else float("nan"),
+                violation=float(ep["violation"].mean()), timeout=float(timeout.mean()),
+                prey_left_per_timeout=float(ep["prey_left"][timeout].mean()) if timeout.any() else 0.0,
+                sensed_share_of_left=float(ep["sensed_left"][timeout].sum()) / left)
+
+
+def load_policy(run: Path, seed_index: int = 0):
+    """``(env, StatefulPolicy)``: the greedy policy of seed ``seed_index``'s best checkpoint of ``run``."""
+    config = json.loads((Path(run) / "config.json").read_text())
+    env = marbler_jax.make(config["scenario"], **config["env"])
+    cfg_cls, _, greedy = ALGORITHMS[config["algo"]]
+    cfg = cfg_cls(**config["algorithm"])
+    params = jax.tree_util.tree_map(lambda x: jnp.asarray(x[seed_index]), restore_params(run))
+    policy = greedy(env, cfg, params)
+    if not isinstance(policy, StatefulPolicy):      # feed-forward policies: (key, obs) -> actions
+        act = policy
+        policy = StatefulPolicy(lambda shape: (), lambda key, obs, carry, reset: (act(key, obs), carry))
+    return env, policy
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run", type=Path)
+    parser.add_argument("--episodes", type=int, default=500)
+    parser.add_argument("--seed-index", type=int, default=0)
+    parser.add_argument("--key", type=int, default=5, help="PRNG seed of the initial states")
+    parser.add_argument("--eps", type=float, nargs="*", default=[])
+    parser.add_argument("--out", type=Path)
+    args = parser.parse_args(argv)
+    config = json.loads((args.run / "config.json").read_text())
+    if config["scenario"] != "predator_capture_prey":
+        parser.error(f"{args.run} is a {config['scenario']} run; this breakdown is for predator_capture_prey")
+    env, policy = load_policy(args.run, args.seed_index)
+    result = {}
+    for eps in [0.0] + args.eps:
+        result[f"eps={eps:g}"] = row = breakdown(play(env, policy, args.episodes, jax.random.PRNGKey(args.key), eps))
+        print(f"eps {eps:g}: " + ", ".join(f"{k} {v:.3f}" for k, v in row.items()), flush=True)
+    if args.out:
+        args.out.write_text(json.dumps(result, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
