@@ -21,6 +21,14 @@ class StatefulPolicy:
     step: Callable
 
 
+def as_stateful(policy) -> StatefulPolicy:
+    """``policy`` as a :class:`StatefulPolicy`: plain ``(key, obs) -> actions`` callables get an empty memory."""
+    if isinstance(policy, StatefulPolicy):
+        return policy
+    return StatefulPolicy(initial_carry=lambda batch_shape: (),
+                          step=lambda key, obs, carry, reset: (policy(key, obs), carry))
+
+
 def random_actions(env, key, batch_shape=()):
     """Uniform random actions ``[*batch_shape, N]`` int32."""
     return jax.random.randint(key, tuple(batch_shape) + (env.num_agents,), 0, env.num_actions, jnp.int32)
@@ -34,18 +42,17 @@ def batched_rollout(env, key, num_envs: int, num_steps: int, policy: Callable | 
     step = jax.vmap(env.step)
     key_reset, key_run = jax.random.split(key)
     obs, state = jax.vmap(env.reset)(jax.random.split(key_reset, num_envs))
-    stateful = isinstance(policy, StatefulPolicy)
-    memory = policy.initial_carry((num_envs,)) if stateful else ()
+    if policy is not None:
+        policy = as_stateful(policy)
+    memory = policy.initial_carry((num_envs,)) if policy is not None else ()
 
     def body(carry, key_t):
         obs, state, memory, reset = carry
         key_act, key_step = jax.random.split(key_t)
         if policy is None:
             actions = random_actions(env, key_act, (num_envs,))
-        elif stateful:
-            actions, memory = policy.step(key_act, obs, memory, reset)
         else:
-            actions = policy(key_act, obs)
+            actions, memory = policy.step(key_act, obs, memory, reset)
         obs, state, rewards, done, info = step(jax.random.split(key_step, num_envs), state, actions)
         return (obs, state, memory, done), (rewards, done, info)
 

@@ -23,34 +23,38 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import marbler_jax  # noqa: E402
-from algorithms.driver import ALGORITHMS  # noqa: E402
-from algorithms.evaluate import restore_params  # noqa: E402
-from marbler_jax.rollout import StatefulPolicy, at_first_done  # noqa: E402
+from algorithms.driver import load_run  # noqa: E402
+from marbler_jax.rollout import as_stateful, at_first_done  # noqa: E402
 
 
-def play(env, policy, episodes: int, key, eps: float = 0.0) -> dict[str, np.ndarray]:
-    """Each env's first episode: return, steps, violation, prey left, sensed-but-uncaptured prey."""
-    key_reset, key_run = jax.random.split(key)
-    obs, state = jax.vmap(env.reset)(jax.random.split(key_reset, episodes))
+def make_play(env, policy, episodes: int):
+    """Jitted ``(key, eps) -> dict`` of ``[episodes]`` arrays, each env's first episode: return, steps,
+    violation, prey left, sensed-but-uncaptured prey (``eps``: share of uniformly random actions)."""
+    policy = as_stateful(policy)
 
-    def body(carry, key_t):
-        obs, state, memory, reset = carry
-        key_act, key_noise, key_pick, key_step = jax.random.split(key_t, 4)
-        actions, memory = policy.step(key_act, obs, memory, reset)
-        noise = jax.random.randint(key_noise, actions.shape, 0, env.num_actions, actions.dtype)
-        actions = jnp.where(jax.random.uniform(key_pick, actions.shape) < eps, noise, actions)
-        flags = state.scenario.sensed & ~state.scenario.captured
-        obs, state, _, done, info = jax.vmap(env.step)(jax.random.split(key_step, episodes), state, actions)
-        record = dict(done=done, sensed_left=jnp.sum(flags, -1), prey_left=info["prey_left"],
-                      ret=info["episode_return"], steps=info["steps"],
-                      violation=info["episode_collided"] | info["episode_out_of_bounds"])
-        return (obs, state, memory, done), record
+    def play(key, eps):
+        key_reset, key_run = jax.random.split(key)
+        obs, state = jax.vmap(env.reset)(jax.random.split(key_reset, episodes))
 
-    start = (obs, state, policy.initial_carry((episodes,)), jnp.ones((episodes,), bool))
-    _, trace = jax.lax.scan(body, start, jax.random.split(key_run, env.max_steps))
-    trace = jax.tree_util.tree_map(np.asarray, trace)
-    return {k: at_first_done(trace["done"], v) for k, v in trace.items() if k != "done"}
+        def body(carry, key_t):
+            obs, state, memory, reset = carry
+            key_act, key_noise, key_pick, key_step = jax.random.split(key_t, 4)
+            actions, memory = policy.step(key_act, obs, memory, reset)
+            noise = jax.random.randint(key_noise, actions.shape, 0, env.num_actions, actions.dtype)
+            actions = jnp.where(jax.random.uniform(key_pick, actions.shape) < eps, noise, actions)
+            flags = state.scenario.sensed & ~state.scenario.captured
+            obs, state, _, done, info = jax.vmap(env.step)(jax.random.split(key_step, episodes), state, actions)
+            record = dict(sensed_left=jnp.sum(flags, -1), prey_left=info["prey_left"],
+                          ret=info["episode_return"], steps=info["steps"],
+                          violation=info["episode_collided"] | info["episode_out_of_bounds"])
+            return (obs, state, memory, done), (done, record)
+
+        start = (obs, state, policy.initial_carry((episodes,)), jnp.ones((episodes,), bool))
+        _, (done, trace) = jax.lax.scan(body, start, jax.random.split(key_run, env.max_steps))
+        return {k: at_first_done(done, v) for k, v in trace.items()}
+
+    jitted = jax.jit(play)
+    return lambda key, eps=0.0: jax.tree_util.tree_map(np.asarray, jitted(key, jnp.float32(eps)))
 
 
 def breakdown(ep: dict[str, np.ndarray]) -> dict[str, float]:
@@ -62,20 +66,6 @@ def breakdown(ep: dict[str, np.ndarray]) -> dict[str, float]:
                 violation=float(ep["violation"].mean()), timeout=float(timeout.mean()),
                 prey_left_per_timeout=float(ep["prey_left"][timeout].mean()) if timeout.any() else 0.0,
                 sensed_share_of_left=float(ep["sensed_left"][timeout].sum()) / left)
-
-
-def load_policy(run: Path, seed_index: int = 0):
-    """``(env, StatefulPolicy)``: the greedy policy of seed ``seed_index``'s best checkpoint of ``run``."""
-    config = json.loads((Path(run) / "config.json").read_text())
-    env = marbler_jax.make(config["scenario"], **config["env"])
-    cfg_cls, _, greedy = ALGORITHMS[config["algo"]]
-    cfg = cfg_cls(**config["algorithm"])
-    params = jax.tree_util.tree_map(lambda x: jnp.asarray(x[seed_index]), restore_params(run))
-    policy = greedy(env, cfg, params)
-    if not isinstance(policy, StatefulPolicy):      # feed-forward policies: (key, obs) -> actions
-        act = policy
-        policy = StatefulPolicy(lambda shape: (), lambda key, obs, carry, reset: (act(key, obs), carry))
-    return env, policy
 
 
 def main(argv=None) -> int:
@@ -90,10 +80,11 @@ def main(argv=None) -> int:
     config = json.loads((args.run / "config.json").read_text())
     if config["scenario"] != "predator_capture_prey":
         parser.error(f"{args.run} is a {config['scenario']} run; this breakdown is for predator_capture_prey")
-    env, policy = load_policy(args.run, args.seed_index)
+    env, policy = load_run(args.run, args.seed_index, checkpoint="best")
+    play = make_play(env, policy, args.episodes)
     result = {}
     for eps in [0.0] + args.eps:
-        result[f"eps={eps:g}"] = row = breakdown(play(env, policy, args.episodes, jax.random.PRNGKey(args.key), eps))
+        result[f"eps={eps:g}"] = row = breakdown(play(jax.random.PRNGKey(args.key), eps))
         print(f"eps {eps:g}: " + ", ".join(f"{k} {v:.3f}" for k, v in row.items()), flush=True)
     if args.out:
         args.out.write_text(json.dumps(result, indent=2))

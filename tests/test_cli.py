@@ -107,10 +107,11 @@ def test_train_vdn_then_evaluate_best_checkpoint(tmp_path, capsys):
     import jax
     import numpy as np
 
+    from algorithms.driver import load_run
     from algorithms.evaluate import greedy_episodes
 
-    env, policy = failures.load_policy(out)
-    played = failures.play(env, policy, 6, jax.random.PRNGKey(5))
+    env, policy = load_run(out, checkpoint="best")
+    played = failures.make_play(env, policy, 6)(jax.random.PRNGKey(5))
     reference = greedy_episodes(env, policy, 6, jax.random.PRNGKey(5))
     np.testing.assert_allclose(played["ret"], reference["reward"], rtol=1e-6)
     assert rows["eps=0"]["return_mean"] == pytest.approx(float(reference["reward"].mean()), rel=1e-5)
