@@ -44,7 +44,12 @@ exploit the structure:
 
 * a pair row touches two robots only. The C(N,2) pairs are grouped into N-1 rounds of a
   round-robin tournament; the pairs of a round are disjoint, so a whole round is updated at once
-  with exactly the Gauss-Seidel result (N-1 vector steps per sweep instead of C(N,2) scalar ones);
+  with exactly the Gauss-Seidel result (N-1 vector steps per sweep instead of C(N,2) scalar ones).
+  The robots' velocities are kept in the circle's two rows of slots, the second row reversed, so
+  that a turn of the circle is two shifts by one: no reversal or gather in the inner loop (a
+  reversal per round made the N = 20 solve ~4x slower on XLA's CPU backend);
+* pair rows are scaled to unit normals, so a row's step needs three numbers (normal, scaled
+  ``b``) and no division;
 * boundary rows act on one coordinate each and are handled as per-robot boxes in one step;
 * distant pairs have ``b`` far above anything ``A u`` reaches and simply keep ``l = 0``;
 * ``solve(..., warm_start=info.multipliers)`` starts from an earlier solve's multipliers and the
@@ -138,7 +143,7 @@ def round_robin(n: int) -> tuple[np.ndarray, np.ndarray]:
     ``second[r, k]``. ``R = n' - 1`` rounds of ``H = n'/2`` pairs with ``n' = n + n % 2``; index ``n``
     is a phantom robot for odd ``n``. The order is the circle method's: keep the players in a row,
     pair slot ``k`` with slot ``n' - 1 - k``, then rotate slots ``1..n'-1`` right by one, so the solver
-    only ever slices, reverses and rotates -- no gathers in its inner loop.
+    only ever slices and shifts -- no gathers in its inner loop (see :func:`_polygon`).
     """
     m = n + n % 2
     players = list(range(m))
@@ -348,65 +353,63 @@ def make_barrier(kind: str = "si2", **params) -> Barrier:
     )
 
 
-def _pair_rows(barrier: Barrier, positions, xp, headings=None):
-    """Pair rows in round layout: ``e [..., R, H, 2]``, ``b``, ``|a|^2`` and ``valid`` ``[..., R, H]``.
+def _pair_rows(barrier: Barrier, points, n: int, xp, headings=None):
+    """Pair rows in round layout, batch-minor.
 
-    Row (r, k) reads ``-2 e.u_first + 2 e.u_second <= b`` with ``e = x_first - x_second``. The
-    ``uni_dd`` kinds pass the robots' ``headings [..., N]`` for their disturbance term.
+    ``points [N', 2, B]`` are the robots' positions with a zero phantom row for odd ``n``
+    (``headings [N', B]`` likewise, ``uni_dd`` kinds only). Returns ``e [R, H, 2, B]``, ``b`` and
+    ``d2 = |e|^2`` ``[R, H, B]``, and the static mask ``valid [R, H]`` of rows between two real
+    robots. Row (r, k) reads ``-2 e.u_first + 2 e.u_second <= b`` with ``e = x_first - x_second``.
     """
-    n = positions.shape[-2]
     first, second = round_robin(n)
-    if n % 2:  # phantom robot: its rows are masked out
-        pad = xp.zeros(positions.shape[:-2] + (1, 2), dtype=positions.dtype)
-        positions = xp.concatenate([positions, pad], axis=-2)
-        if headings is not None:
-            headings = xp.concatenate([headings, pad[..., 0]], axis=-1)
-    e = positions[..., first, :] - positions[..., second, :]
     valid = (first < n) & (second < n)
-    e = xp.where(valid[..., None], e, xp.zeros_like(e))
-    h = xp.sum(e * e, axis=-1) - barrier.si_radius ** 2
+    e = points[first] - points[second]
+    if not valid.all():
+        e = e * valid[:, :, None, None].astype(e.dtype)
+    d2 = e[:, :, 0] * e[:, :, 0] + e[:, :, 1] * e[:, :, 1]
+    h = d2 - barrier.si_radius ** 2
     gain = barrier.barrier_gain
     if barrier.unsafe_barrier_gain is not None:
         gain = xp.where(h < 0, barrier.unsafe_barrier_gain, gain)
     b = gain * h ** 3
     if barrier.is_differential_drive:
-        b = b - barrier.disturbance * (_wheel_l1(barrier, e, headings[..., first], xp)
-                                       + _wheel_l1(barrier, e, headings[..., second], xp))
-    b = xp.where(valid, b, xp.ones_like(h))
-    a2 = 8 * xp.sum(e * e, axis=-1)
-    return e, b, a2, valid
+        b = b - barrier.disturbance * (_wheel_l1(barrier, e, headings[first], xp)
+                                       + _wheel_l1(barrier, e, headings[second], xp))
+    b = xp.where(valid[:, :, None], b, xp.ones_like(h))
+    return e, b, d2, valid
 
 
 def _wheel_l1(barrier: Barrier, e, theta, xp):
     """``|2 e^T M D|_1``: the 1-norm of a pair row's coefficients on one robot's wheel speeds
-    (``M`` maps (v, omega) to the projection point's velocity, ``D`` wheel speeds to (v, omega))."""
+    (``M`` maps (v, omega) to the projection point's velocity, ``D`` wheel speeds to (v, omega));
+    ``e [R, H, 2, B]``, ``theta [R, H, B]``."""
     c, s = xp.cos(theta), xp.sin(theta)
-    along = 2 * (e[..., 0] * c + e[..., 1] * s)
-    across = 2 * barrier.projection_distance * (-e[..., 0] * s + e[..., 1] * c)
+    along = 2 * (e[:, :, 0] * c + e[:, :, 1] * s)
+    across = 2 * barrier.projection_distance * (-e[:, :, 0] * s + e[:, :, 1] * c)
     k_v, k_w = barrier.wheel_radius / 2, barrier.wheel_radius / barrier.base_length
     return xp.abs(along * k_v - across * k_w) + xp.abs(along * k_v + across * k_w)
 
 
 def _wheel_rows(barrier: Barrier, headings, xp):
     """Wheel-speed rows on the projection-point velocity ``u``: ``|c_w . u| <= wheel_vel_limit`` with
-    ``c_left, c_right`` each ``[..., N, 2]`` (the wheel speeds are ``D^-1 M^-1 u``), and ``|c_w|^2``
-    (a constant, the same for both wheels and every heading)."""
+    ``c_left, c_right`` each ``[N, 2, B]`` for ``headings [N, B]`` (the wheel speeds are
+    ``D^-1 M^-1 u``), and ``|c_w|^2`` (a constant, the same for both wheels and every heading)."""
     c, s = xp.cos(headings), xp.sin(headings)
     k = barrier.base_length / (2 * barrier.projection_distance)
     r = barrier.wheel_radius
-    left = xp.stack([c + k * s, s - k * c], axis=-1) / r
-    right = xp.stack([c - k * s, s + k * c], axis=-1) / r
+    left = xp.stack([c + k * s, s - k * c], axis=1) / r
+    right = xp.stack([c - k * s, s + k * c], axis=1) / r
     return left, right, (1 + k * k) / (r * r)
 
 
-def _boxes(barrier: Barrier, positions, xp):
-    """Boundary rows as per-robot boxes ``lo <= u <= hi`` (``[..., N, 2]`` each)."""
+def _boxes(barrier: Barrier, points, xp):
+    """Boundary rows as per-robot boxes ``lo <= u <= hi`` for ``points [N, 2, B]`` (each ``[N, 2, B]``)."""
     x_min, x_max, y_min, y_max = barrier.boundary_points
     half = barrier.si_radius / 2
     g = 0.4 * barrier.barrier_gain
-    hi = g * (xp.asarray([x_max, y_max], dtype=positions.dtype) - half - positions) ** 3
-    lo = -g * (positions - xp.asarray([x_min, y_min], dtype=positions.dtype) - half) ** 3
-    return lo, hi
+    upper = xp.asarray([[x_max], [y_max]], dtype=points.dtype)
+    lower = xp.asarray([[x_min], [y_min]], dtype=points.dtype)
+    return -g * (points - lower - half) ** 3, g * (upper - half - points) ** 3
 
 
 @functools.lru_cache(maxsize=None)
@@ -421,13 +424,29 @@ def _incidence(n: int) -> np.ndarray:
     return inc
 
 
+@functools.lru_cache(maxsize=None)
+def _polygon(n: int) -> np.ndarray:
+    """``[N']`` robot held by each row of the solver's state at the start of a sweep.
+
+    The state stacks the circle method's two rows of slots: the first ``H`` slots in order, then
+    the other ``H`` reversed, so that state row ``k`` of the top half meets state row ``H + k`` in the
+    current round, and one rotation of the circle is two shifts by one (no reversal). The map is its
+    own inverse.
+    """
+    m = n + n % 2
+    return np.concatenate([np.arange(m // 2), np.arange(m - 1, m // 2 - 1, -1)]).astype(np.int32)
+
+
 def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None = None, headings=None):
     """The SI certificate QP for ``positions [..., N, 2]``; returns ``(u [..., N, 2], info)``.
 
-    Internally every batch axis is folded into the last (minor) axis, so each vector step of the
-    sweep runs over the whole batch with unit stride. ``warm_start`` (multipliers of a previous
-    solve) sets the initial multipliers and the matching primal point ``u_hat - A^T lambda``.
-    The ``uni_dd`` kinds pass the robots' ``headings [..., N]`` (their disturbance term and wheel rows).
+    Every batch axis is folded into the last (minor) axis first, so each vector step -- the row
+    set-up, the sweeps and the diagnostics -- runs over the whole batch with unit stride. Pair rows
+    are scaled to unit normals (``e_hat . (u_second - u_first) <= b / (2 |e|)``; the same QP, so the
+    same iterates) and their multipliers carried scaled by ``2 |e|``: a row's step then needs three
+    numbers per pair instead of four. ``warm_start`` (multipliers of a previous solve) sets the
+    initial multipliers and the matching primal point ``u_hat - A^T lambda``. The ``uni_dd`` kinds
+    pass the robots' ``headings [..., N]`` (their disturbance term and wheel rows).
     """
     xp = namespace(u_nom, positions)
     n = positions.shape[-2]
@@ -440,47 +459,60 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
         zero = xp.zeros(batch, dtype=u_hat.dtype)
         return u_hat, CertificateInfo(zero, zero == 0, zero.astype(xp.int32),
                                       barrier.initial_multipliers(0, batch, u_hat.dtype, xp))
-    first, second = round_robin(n)
-    rounds, half = first.shape
+    rounds, half = round_robin(n)[0].shape
     m = n + n % 2
     nb = len(batch)
-    e, b, a2, valid = _pair_rows(barrier, positions, xp, headings)
-    usable = a2 > 0
-    inv_a2 = to_minor(xp.where(usable, 1 / xp.where(usable, a2, 1), 0), nb, xp)  # [R, H, B]
-    ex = to_minor(2 * e[..., 0], nb, xp)
-    ey = to_minor(2 * e[..., 1], nb, xp)
-    bm = to_minor(b, nb, xp)
+    dtype = u_hat.dtype
+    points = to_minor(positions, nb, xp)                                  # [N, 2, B]
+    flat_b = points.shape[-1]
+    pad2 = xp.zeros((m - n, 2, flat_b), dtype=dtype)
+    heads = None
+    if headings is not None:
+        heads = to_minor(headings, nb, xp)                                # [N, B]
+        heads_padded = xp.concatenate([heads, pad2[:, 0]], axis=0)
+    e, b, d2, valid = _pair_rows(barrier, xp.concatenate([points, pad2], axis=0), n, xp,
+                                 None if heads is None else heads_padded)
+    usable = d2 > 0
+    inv_norm = xp.where(usable, 1 / xp.sqrt(xp.where(usable, d2, 1)), 0)  # 1/|e|, 0 where unusable
+    scale = 2 * d2 * inv_norm                                             # lambda' = scale lambda
+    nx, ny = e[:, :, 0] * inv_norm, e[:, :, 1] * inv_norm
+    bs = b * (0.5 * inv_norm)
+    order = _polygon(n)
+
+    def layout(v):  # [N, 2, B] robot order -> [N', 2, B] polygon order (phantom zero)
+        return xp.concatenate([v, pad2], axis=0)[order]
+
+    def robot_order(v):  # inverse of layout (the map is its own inverse)
+        return v[order][:n]
+
     boxed = barrier.boundary_points is not None
+    lo = hi = None
     if boxed:
-        lo, hi = _boxes(barrier, positions, xp)
-        lo_x, lo_y = to_minor(lo[..., 0], nb, xp), to_minor(lo[..., 1], nb, xp)  # [N, B]
-        hi_x, hi_y = to_minor(hi[..., 0], nb, xp), to_minor(hi[..., 1], nb, xp)
+        lo, hi = _boxes(barrier, points, xp)
+        lo_p, hi_p = layout(lo), layout(hi)
     wheeled = barrier.is_differential_drive
     if wheeled:
-        c_left, c_right, wheel_norm2 = _wheel_rows(barrier, headings, xp)
-        wheel_dirs = tuple(to_minor(c[..., i], nb, xp) for c in (c_left, c_right) for i in (0, 1))  # [N, B]
+        c_left, c_right, wheel_norm2 = _wheel_rows(barrier, heads, xp)
+        dir_l, dir_r = layout(c_left), layout(c_right)
         inv_c2 = 1 / wheel_norm2
         limit = barrier.wheel_vel_limit
     omega = barrier.omega(n)
 
-    def rotate(v):  # slots 1..m-1 right by one (circle method)
-        return xp.concatenate([v[:1], v[-1:], v[1:-1]], axis=0)
+    def box_step(u, lam_lo, lam_hi, w):
+        step_hi = xp.maximum(-lam_hi, w * (u - hi_p))
+        u = u - step_hi
+        step_lo = xp.maximum(-lam_lo, w * (lo_p - u))
+        return u + step_lo, lam_lo + step_lo, lam_hi + step_hi
 
-    def box_step(uc, lam_lo, lam_hi, lo_c, hi_c, w):
-        step_hi = xp.maximum(-lam_hi, w * (uc - hi_c))
-        uc = uc - step_hi
-        step_lo = xp.maximum(-lam_lo, w * (lo_c - uc))
-        return uc + step_lo, lam_lo + step_lo, lam_hi + step_hi
-
-    def slab_step(cx, cy, lam_lo, lam_hi, dir_x, dir_y, w):
+    def slab_step(u, lam_lo, lam_hi, direction, w):
         """Rows ``dir.u <= limit`` (``lam_hi``) and ``-dir.u <= limit`` (``lam_lo``), one robot each."""
-        step_hi = xp.maximum(-lam_hi, w * (dir_x * cx + dir_y * cy - limit) * inv_c2)
-        cx, cy = cx - dir_x * step_hi, cy - dir_y * step_hi
-        step_lo = xp.maximum(-lam_lo, w * (-limit - dir_x * cx - dir_y * cy) * inv_c2)
-        return cx + dir_x * step_lo, cy + dir_y * step_lo, lam_lo + step_lo, lam_hi + step_hi
+        step_hi = xp.maximum(-lam_hi, w * (xp.sum(direction * u, axis=1) - limit) * inv_c2)
+        u = u - direction * step_hi[:, None]
+        step_lo = xp.maximum(-lam_lo, w * (-limit - xp.sum(direction * u, axis=1)) * inv_c2)
+        return u + direction * step_lo[:, None], lam_lo + step_lo, lam_hi + step_hi
 
     def sweep(i, carry):
-        ux, uy, lam, box, wheels = carry
+        state, lam, box, wheels = carry
         # The first sweep is plain Gauss-Seidel: it solves single-active-constraint problems exactly.
         # So is the last for the uni_dd kinds, whose wheel limits can make the QP infeasible: an
         # over-relaxed final step would throw the output past the wheel limits it just enforced.
@@ -488,112 +520,102 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
         w = (1.0 if plain else omega) if xp is np else xp.where(plain, 1.0, omega)
         lam = list(lam)
         for r in range(rounds):
-            ax, bx = ux[:half], ux[half:][::-1]
-            ay, by = uy[:half], uy[half:][::-1]
-            exr, eyr = ex[r], ey[r]
-            viol = exr * (bx - ax) + eyr * (by - ay) - bm[r]
-            step = xp.maximum(-lam[r], w * viol * inv_a2[r])
+            top, bottom = state[:half], state[half:]
+            gap = bottom - top
+            step = xp.maximum(-lam[r], (0.5 * w) * (nx[r] * gap[:, 0] + ny[r] * gap[:, 1] - bs[r]))
             lam[r] = lam[r] + step
-            px, py = exr * step, eyr * step
-            ux = rotate(xp.concatenate([ax + px, (bx - px)[::-1]], axis=0))
-            uy = rotate(xp.concatenate([ay + py, (by - py)[::-1]], axis=0))
-        if boxed or wheeled:
-            cx, cy = ux[:n], uy[:n]
-            if boxed:
-                llx, lhx, lly, lhy = box
-                cx, llx, lhx = box_step(cx, llx, lhx, lo_x, hi_x, w)
-                cy, lly, lhy = box_step(cy, lly, lhy, lo_y, hi_y, w)
-                box = (llx, lhx, lly, lhy)
-            if wheeled:
-                l_lo, l_hi, r_lo, r_hi = wheels
-                cx, cy, l_lo, l_hi = slab_step(cx, cy, l_lo, l_hi, wheel_dirs[0], wheel_dirs[1], w)
-                cx, cy, r_lo, r_hi = slab_step(cx, cy, r_lo, r_hi, wheel_dirs[2], wheel_dirs[3], w)
-                wheels = (l_lo, l_hi, r_lo, r_hi)
-            ux = xp.concatenate([cx, ux[n:]], axis=0)
-            uy = xp.concatenate([cy, uy[n:]], axis=0)
-        return ux, uy, tuple(lam), box, wheels
+            push = xp.stack([nx[r] * step, ny[r] * step], axis=1)
+            top, bottom = top + push, bottom - push
+            # One turn of the circle: slots 1..m-1 move right by one (two robots: nothing moves).
+            parts = [top[:1], bottom[:1], top[1:half - 1], bottom[1:], top[half - 1:]] if half > 1 else [top, bottom]
+            state = xp.concatenate(parts, axis=0)
+        if boxed:
+            state, *box = box_step(state, *box, w)
+        if wheeled:
+            state, l_lo, l_hi = slab_step(state, wheels[0], wheels[1], dir_l, w)
+            state, r_lo, r_hi = slab_step(state, wheels[2], wheels[3], dir_r, w)
+            wheels = (l_lo, l_hi, r_lo, r_hi)
+        return state, tuple(lam), tuple(box), wheels
 
-    flat_b = bm.shape[-1]
-    uh = to_minor(u_hat, nb, xp)  # [N, 2, B]
-    pad = xp.zeros((m - n, flat_b), dtype=u_hat.dtype)
-    ux0 = xp.concatenate([uh[:, 0], pad], axis=0)
-    uy0 = xp.concatenate([uh[:, 1], pad], axis=0)
-    lam0 = tuple(xp.zeros((half, flat_b), dtype=u_hat.dtype) for _ in range(rounds))
-    zero_box = xp.zeros((n, flat_b), dtype=u_hat.dtype)
-    box0 = (zero_box,) * 4 if boxed else ()
-    wheels0 = (zero_box,) * 4 if wheeled else ()
+    u0 = to_minor(u_hat, nb, xp)  # [N, 2, B]
+    lam0 = xp.zeros((rounds, half, flat_b), dtype=dtype)
+    zero_box = xp.zeros((m, 2, flat_b), dtype=dtype)
+    zero_wheel = xp.zeros((m, flat_b), dtype=dtype)
+    box0 = (zero_box,) * 2 if boxed else ()
+    wheels0 = (zero_wheel,) * 4 if wheeled else ()
     if warm_start is not None:
         # Rows that cannot act (phantom, coincident robots) start at zero; u0 = u_hat - A^T lambda0.
-        lam_w = xp.where(inv_a2 > 0, xp.maximum(to_minor(warm_start.pairs, nb, xp), 0), 0)   # [R, H, B]
-        inc = xp.asarray(_incidence(n), dtype=u_hat.dtype)
-        ux0 = ux0 + xp.einsum("srh,rhb->sb", inc, ex * lam_w)
-        uy0 = uy0 + xp.einsum("srh,rhb->sb", inc, ey * lam_w)
-        lam0 = tuple(lam_w[r] for r in range(rounds))
+        lam_w = xp.maximum(to_minor(warm_start.pairs, nb, xp), 0) * scale   # [R, H, B], scaled
+        inc = xp.asarray(_incidence(n)[:n], dtype=dtype)
+        u0 = u0 + xp.stack([xp.einsum("srh,rhb->sb", inc, nx * lam_w),
+                            xp.einsum("srh,rhb->sb", inc, ny * lam_w)], axis=1)
+        lam0 = lam_w
         if boxed:
             lo_w = xp.maximum(to_minor(warm_start.lower, nb, xp), 0)   # [N, 2, B]
             hi_w = xp.maximum(to_minor(warm_start.upper, nb, xp), 0)
-            shift = xp.concatenate([lo_w - hi_w, xp.zeros((m - n, 2, flat_b), dtype=u_hat.dtype)], axis=0)
-            ux0, uy0 = ux0 + shift[:, 0], uy0 + shift[:, 1]
-            box0 = (lo_w[:, 0], hi_w[:, 0], lo_w[:, 1], hi_w[:, 1])
+            u0 = u0 + lo_w - hi_w
+            box0 = (layout(lo_w), layout(hi_w))
         if wheeled:
             w_lo = xp.maximum(to_minor(warm_start.wheel_lower, nb, xp), 0)   # [N, 2 wheels, B]
             w_hi = xp.maximum(to_minor(warm_start.wheel_upper, nb, xp), 0)
-            net = w_lo - w_hi
-            pad_n = xp.zeros((m - n, flat_b), dtype=u_hat.dtype)
-            ux0 = ux0 + xp.concatenate([wheel_dirs[0] * net[:, 0] + wheel_dirs[2] * net[:, 1], pad_n], axis=0)
-            uy0 = uy0 + xp.concatenate([wheel_dirs[1] * net[:, 0] + wheel_dirs[3] * net[:, 1], pad_n], axis=0)
+            net = (w_lo - w_hi)[:, :, None]
+            u0 = u0 + c_left * net[:, 0] + c_right * net[:, 1]
+            w_lo, w_hi = layout(w_lo), layout(w_hi)
             wheels0 = (w_lo[:, 0], w_hi[:, 0], w_lo[:, 1], w_hi[:, 1])
     sweeps = barrier.sweeps(n)
     last = sweeps - 1
-    ux, uy, lam, box, wheels = fori_loop(xp, 0, sweeps, sweep, (ux0, uy0, lam0, box0, wheels0))
-    # (m - 1) rotations per sweep bring the slots back to robot order.
-    u = from_minor(xp.stack([ux[:n], uy[:n]], axis=1), batch, xp)
-    lam = from_minor(xp.stack(lam, axis=0), batch, xp)  # [..., R, H]
-    if boxed:
-        llx, lhx, lly, lhy = (from_minor(v, batch, xp) for v in box)
-        lam_lo, lam_hi = xp.stack([llx, lly], axis=-1), xp.stack([lhx, lhy], axis=-1)
-    else:
-        lo = hi = lam_lo = lam_hi = None
-    wheel_rows = wheel_lo = wheel_hi = None
+    init = (layout(u0), tuple(lam0[r] for r in range(rounds)), box0, wheels0)
+    state, lam, box, wheels = fori_loop(xp, 0, sweeps, sweep, init)
+    # (m - 1) turns per sweep bring the slots back to the polygon order of the start.
+    u = robot_order(state)                                                # [N, 2, B]
+    lam_s = xp.stack(lam, axis=0)
+    lam = xp.where(scale > 0, lam_s / xp.where(scale > 0, scale, 1), 0)   # [R, H, B]
+    box = tuple(robot_order(v) for v in box)                               # lower, upper [N, 2, B]
+    wheel_rows = None
     if wheeled:
-        l_lo, l_hi, r_lo, r_hi = (from_minor(v, batch, xp) for v in wheels)
-        wheel_lo, wheel_hi = xp.stack([l_lo, r_lo], axis=-1), xp.stack([l_hi, r_hi], axis=-1)
-        wheel_rows = (c_left, c_right, wheel_norm2, wheel_lo, wheel_hi)
-    info = _diagnostics(barrier, u, e, b, a2, valid, lam, lo, hi, lam_lo, lam_hi, xp, wheel_rows)
-    multipliers = Multipliers(lam, lam_lo, lam_hi, wheel_lo, wheel_hi)
-    return u, info._replace(multipliers=multipliers)
+        l_lo, l_hi, r_lo, r_hi = (robot_order(v) for v in wheels)
+        wheels = (xp.stack([l_lo, r_lo], axis=1), xp.stack([l_hi, r_hi], axis=1))   # [N, 2 wheels, B]
+        wheel_rows = (c_left, c_right, wheel_norm2) + wheels
+    info = _diagnostics(barrier, u, e, b, d2, valid, lam, lo, hi, box, xp, wheel_rows)
+    info = CertificateInfo(*(v.reshape(batch) for v in info[:3]))
+    unbatch = lambda v: from_minor(v, batch, xp)  # noqa: E731
+    lower, upper = (unbatch(v) for v in box) if boxed else (None, None)
+    wheel_lower, wheel_upper = (unbatch(v) for v in wheels) if wheeled else (None, None)
+    multipliers = Multipliers(unbatch(lam), lower, upper, wheel_lower, wheel_upper)
+    return unbatch(u), info._replace(multipliers=multipliers)
 
 
-def _diagnostics(barrier, u, e, b, a2, valid, lam, lo, hi, lam_lo, lam_hi, xp, wheel_rows=None):
-    """Violation of every row at the returned ``u`` (not only the rows the solver touched)."""
-    n = u.shape[-2]
+def _diagnostics(barrier, u, e, b, d2, valid, lam, lo, hi, box, xp, wheel_rows=None):
+    """Violation of every row at the returned ``u [N, 2, B]`` (not only the rows the solver touched);
+    batch-minor like :func:`solve_si`'s internals, each result ``[B]``."""
+    n, _, flat_b = u.shape
     first, second = round_robin(n)
-    batch = u.shape[:-2]
-    flat = batch + (-1,)
+    rows = (0, 1)
     if first.size:
-        padded = xp.concatenate([u, xp.zeros(batch + (n % 2, 2), dtype=u.dtype)], axis=-2)
-        gap = 2 * xp.sum(e * (padded[..., second, :] - padded[..., first, :]), axis=-1) - b
-        usable = a2 > 0
-        row_norm = xp.sqrt(xp.where(usable, a2, 1))
-        pair_viol = xp.where(usable, gap / row_norm, xp.where(valid & (b < 0), -b, 0))
-        worst = xp.max(pair_viol.reshape(flat), axis=-1)
-        active = xp.sum((lam > 0).reshape(flat), axis=-1)
-        degenerate = xp.any((valid & ~usable & (b < 0)).reshape(flat), axis=-1)
+        padded = xp.concatenate([u, xp.zeros((n % 2, 2, flat_b), dtype=u.dtype)], axis=0)
+        gap = 2 * xp.sum(e * (padded[second] - padded[first]), axis=2) - b
+        usable = d2 > 0
+        row_norm = xp.sqrt(8 * xp.where(usable, d2, 1))                   # |a| = 2 sqrt(2) |e|
+        real = valid[:, :, None]
+        pair_viol = xp.where(usable, gap / row_norm, xp.where(real & (b < 0), -b, 0))
+        worst = xp.max(pair_viol, axis=rows)
+        active = xp.sum(lam > 0, axis=rows)
+        degenerate = xp.any(real & ~usable & (b < 0), axis=rows)
     else:
-        worst = xp.zeros(batch, dtype=u.dtype)
-        active = xp.zeros(batch, dtype=xp.int32)
+        worst = xp.zeros((flat_b,), dtype=u.dtype)
+        active = xp.zeros((flat_b,), dtype=xp.int32)
         degenerate = worst > 0
     if lo is not None:
-        box_viol = xp.maximum(u - hi, lo - u)
-        worst = xp.maximum(worst, xp.max(box_viol.reshape(flat), axis=-1))
-        active = active + xp.sum(((lam_lo > 0) | (lam_hi > 0)).reshape(flat), axis=-1)
+        lam_lo, lam_hi = box
+        worst = xp.maximum(worst, xp.max(xp.maximum(u - hi, lo - u), axis=rows))
+        active = active + xp.sum((lam_lo > 0) | (lam_hi > 0), axis=rows)
     if wheel_rows is not None:   # |c . u| <= limit, violation as a distance along c
         c_left, c_right, norm2, wheel_lo, wheel_hi = wheel_rows
-        speeds = xp.stack([xp.sum(c_left * u, axis=-1), xp.sum(c_right * u, axis=-1)], axis=-1)
+        speeds = xp.stack([xp.sum(c_left * u, axis=1), xp.sum(c_right * u, axis=1)], axis=1)   # [N, 2, B]
         wheel_viol = (xp.abs(speeds) - barrier.wheel_vel_limit) / math.sqrt(norm2)
-        worst = xp.maximum(worst, xp.max(wheel_viol.reshape(flat), axis=-1))
-        active = active + xp.sum(((wheel_lo > 0) | (wheel_hi > 0)).reshape(flat), axis=-1)
-    scale = 1 + xp.max(xp.abs(u).reshape(flat), axis=-1)
+        worst = xp.maximum(worst, xp.max(wheel_viol, axis=rows))
+        active = active + xp.sum((wheel_lo > 0) | (wheel_hi > 0), axis=rows)
+    scale = 1 + xp.max(xp.abs(u), axis=rows)
     feasible = (worst <= barrier.tolerance * scale) & ~degenerate
     return CertificateInfo(worst, feasible, active)
 
