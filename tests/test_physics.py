@@ -177,7 +177,7 @@ def _crowded(rng, batch, n):
 @pytest.mark.parametrize("stop", [True, False])
 def test_held_ticks_matches_the_tick_by_tick_rps_loop(n, stop, monkeypatch):
     """numpy float64 == rps's loop; JAX float32 batched, vmapped and vmap(vmap) agree with it, with
-    either collision test layout (static slices for small teams, the masked [N, N] block for large)."""
+    either collision test layout (static slices for small teams, cyclic shifts for large; odd and even N)."""
     params = physics.PRESETS["robotarium"]
     rng = np.random.default_rng(n)
     poses, vel = _crowded(rng, 24, n)
@@ -188,7 +188,7 @@ def test_held_ticks_matches_the_tick_by_tick_rps_loop(n, stop, monkeypatch):
     assert _pose_err(got[0], ref[0]) <= 1e-12
     assert 0 < ref[1].sum() < len(poses) or n == 1  # the cases exercise both outcomes
     for threshold in (2, 100):  # force each collision layout
-        monkeypatch.setattr(physics, "_BROADCAST_PAIRS_FROM", threshold)
+        monkeypatch.setattr(physics, "_SHIFTED_PAIRS_FROM", threshold)
         physics._jax_held_ticks.cache_clear()
         run = lambda p, v: physics.held_ticks(params, p, v, 15, stop_on_violation=stop)
         p32, v32 = jnp.asarray(poses, jnp.float32), jnp.asarray(vel, jnp.float32)
