@@ -114,6 +114,49 @@ def test_constraints_hold_after_certification(kind):
         np.testing.assert_allclose(barrier(jnp.asarray(calm), jnp.asarray(x)), 0.0, atol=1e-12)
 
 
+@pytest.mark.parametrize("kind", ["si2", "si_boundary"])
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 5, 8])
+def test_converged_solve_meets_the_kkt_conditions(kind, n):
+    """Long float64 solves on crowded teams: the returned u and multipliers satisfy the QP's KKT
+    conditions row by row (odd N has a phantom robot, N = 2 a single slot pair), so the solver's
+    internal slot layout maps every robot and row back to its place."""
+    rng = np.random.default_rng(n)
+    barrier = cbf.make_barrier(kind, iterations=1500)
+    x = rng.uniform([-1.4, -0.8], [-1.4 + 0.15 * n + 0.2, 0.8], size=(16, n, 2))
+    u_nom = rng.normal(size=x.shape) * 0.2
+    with jax.enable_x64(True):
+        u, info = barrier.solve(jnp.asarray(u_nom), jnp.asarray(x))
+    u, lam = np.asarray(u), np.asarray(info.multipliers.pairs)
+    norm = np.linalg.norm(u_nom, axis=-1, keepdims=True)
+    u_hat = u_nom * np.minimum(1, 0.2 / norm)
+    first, second = cbf.round_robin(n)
+    real = (first < n) & (second < n)
+    grad = np.zeros_like(u)                       # A^T lambda, robot-major
+    slack = []
+    for (r, k), ok in np.ndenumerate(real):
+        if not ok:
+            assert np.all(lam[:, r, k] == 0)
+            continue
+        i, j = first[r, k], second[r, k]
+        e = x[:, i] - x[:, j]
+        h = (e * e).sum(-1) - barrier.si_radius ** 2
+        gain = np.where(h < 0, barrier.unsafe_barrier_gain or barrier.barrier_gain, barrier.barrier_gain)
+        row = 2 * (e * (u[:, j] - u[:, i])).sum(-1) - gain * h ** 3     # <= 0
+        slack.append((row, lam[:, r, k]))
+        grad[:, i] -= 2 * e * lam[:, r, k, None]
+        grad[:, j] += 2 * e * lam[:, r, k, None]
+    if kind == "si_boundary":
+        lo, hi = np.asarray(info.multipliers.lower), np.asarray(info.multipliers.upper)
+        grad += hi - lo
+        assert lo.min() >= 0 and hi.min() >= 0
+    np.testing.assert_allclose(u, u_hat - grad, atol=1e-7)          # stationarity
+    for row, mult in slack:
+        assert mult.min() >= 0                                    # dual feasibility
+        assert row.max() <= 1e-7                                  # primal feasibility
+        assert np.abs(row * mult).max() <= 1e-7                   # complementary slackness
+    assert bool(np.all(info.feasible))
+
+
 def test_single_active_constraint_is_exact():
     # two robots closing in head-on: one active row, solved in closed form by the first sweep
     barrier = cbf.make_barrier("si", iterations=1)
