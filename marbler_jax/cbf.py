@@ -466,15 +466,12 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
     points = to_minor(positions, nb, xp)                                  # [N, 2, B]
     flat_b = points.shape[-1]
     pad2 = xp.zeros((m - n, 2, flat_b), dtype=dtype)
-    heads = None
-    if headings is not None:
-        heads = to_minor(headings, nb, xp)                                # [N, B]
-        heads_padded = xp.concatenate([heads, pad2[:, 0]], axis=0)
+    heads = None if headings is None else to_minor(headings, nb, xp)    # [N, B]
     e, b, d2, valid = _pair_rows(barrier, xp.concatenate([points, pad2], axis=0), n, xp,
-                                 None if heads is None else heads_padded)
+                                 None if heads is None else xp.concatenate([heads, pad2[:, 0]], axis=0))
     usable = d2 > 0
     inv_norm = xp.where(usable, 1 / xp.sqrt(xp.where(usable, d2, 1)), 0)  # 1/|e|, 0 where unusable
-    scale = 2 * d2 * inv_norm                                             # lambda' = scale lambda
+    scale = 2 * d2 * inv_norm                                             # lambda' = 2 |e| lambda
     nx, ny = e[:, :, 0] * inv_norm, e[:, :, 1] * inv_norm
     bs = b * (0.5 * inv_norm)
     order = _polygon(n)
@@ -568,8 +565,7 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
     state, lam, box, wheels = fori_loop(xp, 0, sweeps, sweep, init)
     # (m - 1) turns per sweep bring the slots back to the polygon order of the start.
     u = robot_order(state)                                                # [N, 2, B]
-    lam_s = xp.stack(lam, axis=0)
-    lam = xp.where(scale > 0, lam_s / xp.where(scale > 0, scale, 1), 0)   # [R, H, B]
+    lam = xp.stack(lam, axis=0) * (0.5 * inv_norm)                          # [R, H, B], unscaled
     box = tuple(robot_order(v) for v in box)                               # lower, upper [N, 2, B]
     wheel_rows = None
     if wheeled:

@@ -5,8 +5,12 @@ import importlib.util
 from pathlib import Path
 
 import imageio.v2 as imageio
+import jax
+import numpy as np
 import pytest
 
+from algorithms.driver import load_run
+from algorithms.evaluate import greedy_episodes
 from marbler_jax.cli import main, parse_overrides
 
 
@@ -104,12 +108,6 @@ def test_train_vdn_then_evaluate_best_checkpoint(tmp_path, capsys):
         assert row["success"] + row["violation"] + row["timeout"] == pytest.approx(1.0)
         assert 0 <= row["sensed_share_of_left"] <= 1
     # the breakdown plays the same greedy episodes as evaluate does from the same key
-    import jax
-    import numpy as np
-
-    from algorithms.driver import load_run
-    from algorithms.evaluate import greedy_episodes
-
     env, policy = load_run(out, checkpoint="best")
     played = failures.make_play(env, policy, 6)(jax.random.PRNGKey(5))
     reference = greedy_episodes(env, policy, 6, jax.random.PRNGKey(5))
