@@ -14,19 +14,32 @@ from marbler_jax import cbf, controllers
 from marbler_jax._xp import namespace
 
 
+ENV_RELAXATION = 1.5
+"""Over-relaxation of the env's barrier sweeps when ``cbf_relaxation`` is not set.
+
+The robots an env certificate keeps apart pose well-conditioned problems, on which 1.5 converges in
+fewer sweeps than the 1.7 that :func:`marbler_jax.cbf.default_relaxation` uses above 10 robots (that
+value is tuned on the stiff, overlapping golden cases). On random-policy Warehouse trajectories with
+12-32 robots, 1.5 matched the 400-sweep reference more often than 1.7 at every budget tried
+(``scripts/bench_cbf_env.py --relaxation``, BENCHMARKS.md). Up to 10 robots both defaults are 1.5.
+"""
+
+
 def default_cbf_iterations(num_agents: int, warm_start: bool) -> int:
     """Barrier sweeps per control refresh when ``cbf_iterations`` is not set.
 
     Chosen with ``scripts/bench_cbf_env.py`` (BENCHMARKS.md) on random-policy Warehouse
-    trajectories with 4-20 robots, so that >= 99.9 % of refreshes match a 400-sweep solve within the
-    golden tolerance: ``8 + N`` cold sweeps (what refreshes ``control_period = 15`` ticks apart need;
-    warm starts do not help there, the robots move too far in between), ``3 + 3N/4``
-    warm-started sweeps (the default at ``control_period = 1``, where consecutive refreshes solve
-    nearly the same problem).
+    trajectories with 4-32 robots and relaxation :data:`ENV_RELAXATION`, so that >= 99.9 % of
+    refreshes match a 400-sweep solve within the golden tolerance. Cold (refreshes
+    ``control_period = 15`` ticks apart, where warm starts do not help: the robots move too far in
+    between): ``8 + N`` up to 12 robots, 20 from 12 to 20 robots, ``N`` beyond. Warm-started (the
+    default at ``control_period = 1``, where consecutive refreshes solve nearly the same problem):
+    ``3 + 3N/4`` up to 9 robots, 10 from 10 to 32 robots (measured), ``N / 3`` beyond (extrapolated).
     """
+    n = num_agents
     if warm_start:
-        return 3 + (3 * num_agents) // 4
-    return 8 + num_agents
+        return max(min(3 + (3 * n) // 4, 10), n // 3)
+    return max(min(8 + n, 20), n)
 
 
 def barrier_for(config, num_agents: int):
@@ -35,19 +48,21 @@ def barrier_for(config, num_agents: int):
     ``"safe"`` is MARBLER's default (certificate2 with safety radius 0.2), ``"default"`` MARBLER's
     ``barrier_certificate: default`` (certificate, radius 0.17); other names are
     :func:`marbler_jax.cbf.make_barrier` kinds. Iterations: ``config.cbf_iterations`` or
-    :func:`default_cbf_iterations`.
+    :func:`default_cbf_iterations`; relaxation: ``config.cbf_relaxation`` or :data:`ENV_RELAXATION`.
     """
     kind = config.barrier_certificate
+    if kind == "none":
+        return None
     iterations = config.cbf_iterations
     if iterations is None:
         iterations = default_cbf_iterations(num_agents, config.warm_start_barrier)
-    if kind == "none":
-        return None
+    relaxation = ENV_RELAXATION if config.cbf_relaxation is None else config.cbf_relaxation
+    solver = dict(iterations=iterations, relaxation=relaxation)
     if kind == "safe":
-        return cbf.make_barrier("si2", safety_radius=0.2, iterations=iterations)
+        return cbf.make_barrier("si2", safety_radius=0.2, **solver)
     if kind == "default":
-        return cbf.make_barrier("si", iterations=iterations)
-    return cbf.make_barrier(kind, iterations=iterations)
+        return cbf.make_barrier("si", **solver)
+    return cbf.make_barrier(kind, **solver)
 
 
 def control(poses, goals, barrier):
@@ -101,4 +116,4 @@ def finish_step(scenario, poses, scenario_state, actions, collided, outside, ste
     return new_state, rewards, done, violated, obs, step
 
 
-__all__ = ["default_cbf_iterations", "barrier_for", "control", "control_warm", "select_state", "finish_step"]
+__all__ = ["ENV_RELAXATION", "default_cbf_iterations", "barrier_for", "control", "control_warm", "select_state", "finish_step"]

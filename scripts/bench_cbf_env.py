@@ -6,13 +6,16 @@ Random-policy Warehouse episodes (MARBLER's "safe" certificate: si2, radius 0.2)
 control period (15: MARBLER's training loop, 1: the real Robotarium's). At every control refresh the
 certificate is solved three ways on the same input: a reference (400 cold sweeps), ``k`` cold sweeps,
 and ``k`` sweeps warm-started from the previous refresh's ``k``-sweep multipliers (what the env does
-with ``cbf_warm_start``). The robots follow the reference, so every solve sees the same trajectory.
+with ``cbf_warm_start``); ``k`` and the over-relaxation factor come from ``--sweeps`` and
+``--relaxation`` (default: the env's, :data:`marbler_jax.step_rules.ENV_RELAXATION`). The robots
+follow the reference, so every solve sees the same trajectory.
 Reported: the share of refreshes whose ``k``-sweep output matches the reference within the golden
 tolerance (every component within 5e-4 + 1e-3 max|u_ref|), and the largest constraint violation
 [m/s] of the ``k``-sweep outputs. ``--drift SCENARIO`` adds the closed loop: random-policy episodes
 run with ``k`` sweeps and with 400, and the share of envs whose robots end up > 1 mm / > 1 cm apart
-(and whose ``done`` differs) within ``--drift-steps`` steps. Then env-steps/s of ``jit(scan(vmap(env.step)))`` at batch 4096 for
-the sweep budgets the env uses by default (:func:`marbler_jax.step_rules.default_cbf_iterations`).
+(and whose ``done`` differs) within ``--drift-steps`` steps (``--drift-agents`` sets the team size).
+Then env-steps/s of ``jit(scan(vmap(env.step)))`` at batch 4096 for the sweep budgets the env uses by
+default (:func:`marbler_jax.step_rules.default_cbf_iterations`).
 """
 from __future__ import annotations
 
@@ -30,7 +33,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import marbler_jax  # noqa: E402
 from marbler_jax import cbf, controllers, physics  # noqa: E402
-from marbler_jax.step_rules import finish_step  # noqa: E402
+from marbler_jax.step_rules import ENV_RELAXATION, finish_step  # noqa: E402
 from marbler_jax.rollout import random_actions  # noqa: E402
 
 
@@ -39,11 +42,13 @@ def make_env(n: int, period: int, **overrides):
     return marbler_jax.make("warehouse", n_agents=n, control_period=period, **spacing, **overrides)
 
 
-def accuracy(n: int, period: int, sweeps, n_envs: int, steps: int, seed: int = 0):
-    """``{k: (cold match, warm match, cold worst violation, warm worst violation)}``."""
+def accuracy(n: int, period: int, budgets, n_envs: int, steps: int, seed: int = 0):
+    """``{(k, relaxation): (cold match, warm match, cold worst violation, warm worst violation)}`` for
+    ``budgets``, a list of ``(sweeps, relaxation)``."""
     env = make_env(n, period)
     ref = cbf.make_barrier("si2", safety_radius=0.2, iterations=400)
-    budgets = [cbf.make_barrier("si2", safety_radius=0.2, iterations=k) for k in sweeps]
+    keys = list(budgets)
+    budgets = [cbf.make_barrier("si2", safety_radius=0.2, iterations=k, relaxation=r) for k, r in keys]
     total = env.config.update_frequency
 
     def episode(key):
@@ -91,14 +96,15 @@ def accuracy(n: int, period: int, sweeps, n_envs: int, steps: int, seed: int = 0
         return jax.lax.scan(step, (state, warm), jax.random.split(key, steps))[1]
 
     out = np.asarray(jax.jit(jax.vmap(episode))(jax.random.split(jax.random.PRNGKey(seed), n_envs)))
-    out = out.reshape(-1, len(sweeps), 4)                      # [refreshes, k, 4]
-    return {int(k): dict(cold_match=float(out[:, i, 0].mean()), warm_match=float(out[:, i, 1].mean()),
-                         cold_max_violation=float(out[:, i, 2].max()), warm_max_violation=float(out[:, i, 3].max()))
-            for i, k in enumerate(sweeps)}
+    out = out.reshape(-1, len(keys), 4)                        # [refreshes, budget, 4]
+    return {key: dict(cold_match=float(out[:, i, 0].mean()), warm_match=float(out[:, i, 1].mean()),
+                      cold_max_violation=float(out[:, i, 2].max()), warm_max_violation=float(out[:, i, 3].max()))
+            for i, key in enumerate(keys)}
 
 
-def closed_loop_drift(name: str, period: int, sweeps, batch: int = 512, steps: int = 40):
-    """``{k: (share of envs > 1 mm off, > 1 cm off, with a different done)}`` against 400 sweeps."""
+def closed_loop_drift(name: str, period: int, budgets, batch: int = 512, steps: int = 40, **overrides):
+    """``{(k, relaxation): (share of envs > 1 mm off, > 1 cm off, with a different done)}`` against 400
+    sweeps, for ``budgets`` a list of ``(sweeps, relaxation)``; ``overrides`` go to ``make``."""
     def rollout(env):
         def run(key):
             _, state = jax.vmap(env.reset)(jax.random.split(key, batch))
@@ -111,12 +117,13 @@ def closed_loop_drift(name: str, period: int, sweeps, batch: int = 512, steps: i
             return jax.lax.scan(body, state, jax.random.split(key, steps))[1]
         return jax.jit(run)(jax.random.PRNGKey(1))
 
-    exact, exact_done = rollout(marbler_jax.make(name, control_period=period, cbf_iterations=400))
+    exact, exact_done = rollout(marbler_jax.make(name, control_period=period, cbf_iterations=400, **overrides))
     out = {}
-    for k in sweeps:
-        poses, done = rollout(marbler_jax.make(name, control_period=period, cbf_iterations=k))
+    for k, r in budgets:
+        poses, done = rollout(marbler_jax.make(name, control_period=period, cbf_iterations=k, cbf_relaxation=r,
+                                               **overrides))
         drift = np.asarray(jnp.abs(poses - exact).max(axis=(0, 2, 3)))
-        out[int(k)] = dict(envs_over_1mm=float((drift > 1e-3).mean()), envs_over_1cm=float((drift > 1e-2).mean()),
+        out[(k, r)] = dict(envs_over_1mm=float((drift > 1e-3).mean()), envs_over_1cm=float((drift > 1e-2).mean()),
                            envs_done_differs=float(np.asarray(done != exact_done).any(0).mean()))
     return out
 
@@ -154,25 +161,33 @@ def main(argv=None):
     parser.add_argument("--sweeps", type=int, nargs="+", default=[2, 4, 6, 8, 12, 16, 24, 32])
     parser.add_argument("--drift", metavar="SCENARIO", help="also measure closed-loop drift on this scenario")
     parser.add_argument("--drift-steps", type=int, default=40)
+    parser.add_argument("--drift-agents", type=int, help="n_agents of the drift scenario (default: its own)")
+    parser.add_argument("--relaxation", type=float, nargs="+", default=[ENV_RELAXATION],
+                        help=f"over-relaxation factor(s) of the k-sweep solves (default: the env's, {ENV_RELAXATION})")
     parser.add_argument("--no-accuracy", action="store_true", help="skip the per-refresh accuracy grid")
     args = parser.parse_args(argv)
     ns = [4] if args.quick else args.ns
     sweeps = [2, 4] if args.quick else args.sweeps
+    budgets = [(k, r) for r in args.relaxation for k in sweeps]
     rows = []
     for period in [] if args.no_accuracy else args.periods:
         for n in ns:
             n_envs = 8 if args.quick else (256 if period == 15 else 48) // (1 + n // 8)
             steps = 5 if args.quick else 60
-            for k, r in accuracy(n, period, sweeps, n_envs, steps).items():
-                rows.append(dict(n=n, control_period=period, sweeps=k, envs=n_envs, steps=steps, **r))
-                print(f"N={n:2d} period={period:2d} sweeps={k:2d}: cold {r['cold_match']:.4f} warm {r['warm_match']:.4f} "
+            for (k, w), r in accuracy(n, period, budgets, n_envs, steps).items():
+                rows.append(dict(n=n, control_period=period, sweeps=k, relaxation=w, envs=n_envs, steps=steps, **r))
+                print(f"N={n:2d} period={period:2d} sweeps={k:2d} relaxation={w}: cold {r['cold_match']:.4f} warm {r['warm_match']:.4f} "
                       f"(max violation cold {r['cold_max_violation']:.2e}, warm {r['warm_max_violation']:.2e})", flush=True)
     drift = []
     if args.drift:
+        overrides = {}
+        if args.drift_agents:
+            overrides = dict(n_agents=args.drift_agents, **({"start_dist": 0.3} if args.drift_agents > 6 else {}))
         for period in args.periods:
-            for k, r in closed_loop_drift(args.drift, period, sweeps, steps=args.drift_steps).items():
-                drift.append(dict(scenario=args.drift, control_period=period, sweeps=k, steps=args.drift_steps, **r))
-                print(f"{args.drift} period={period:2d} sweeps={k:2d}: envs > 1 mm {r['envs_over_1mm']:.3f}, "
+            for (k, w), r in closed_loop_drift(args.drift, period, budgets, steps=args.drift_steps, **overrides).items():
+                drift.append(dict(scenario=args.drift, control_period=period, sweeps=k, relaxation=w,
+                                  steps=args.drift_steps, **overrides, **r))
+                print(f"{args.drift} period={period:2d} sweeps={k:2d} relaxation={w}: envs > 1 mm {r['envs_over_1mm']:.3f}, "
                       f"> 1 cm {r['envs_over_1cm']:.3f}, done differs {r['envs_done_differs']:.3f}", flush=True)
     speed = []
     if not args.no_throughput:

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import marbler_jax
+from marbler_jax import cbf, step_rules
 from marbler_jax.rollout import make_rollout
 
 NAMES = marbler_jax.registered()
@@ -124,6 +125,8 @@ def test_capture_reward_and_termination_pcp():
     (dict(predator=20), "cannot place 22 robots"),
     (dict(LEFT=-2.0), "waypoint box"),
     (dict(penalize_violations="yes"), "penalize_violations must be true or false"),
+    (dict(cbf_relaxation=2.0), r"cbf_relaxation=2.0 must lie in \(0, 2\)"),
+    (dict(cbf_iterations=0), "cbf_iterations must be a positive integer"),
 ])
 def test_bad_config_is_rejected_clearly(bad, message):
     with pytest.raises(ValueError, match=message):
@@ -141,6 +144,20 @@ def test_bad_scenario_and_actions_are_rejected_clearly():
         env.step(jax.random.PRNGKey(0), state, jnp.array([0, 7, 0, 0]))
     with pytest.raises(ValueError, match="must be integers"):
         env.step(jax.random.PRNGKey(0), state, jnp.zeros(4))
+
+
+def test_barrier_sweeps_and_relaxation_follow_the_config():
+    """Defaults from step_rules (the env-tuned 1.5 for every team size, not the golden-tuned 1.7 that
+    cbf uses above 10 robots); explicit cbf_iterations / cbf_relaxation reach the solver unchanged."""
+    cases = [(dict(), 4, 6), (dict(control_period=15), 4, 12),
+             (dict(n_agents=20, start_dist=0.3), 20, 10), (dict(n_agents=20, start_dist=0.3, control_period=15), 20, 20)]
+    for overrides, n, sweeps in cases:
+        env = marbler_jax.make("warehouse", **{"n_agents": 4, **overrides})
+        assert env.num_agents == n and env.barrier.iterations == sweeps, (overrides, env.barrier.iterations)
+        assert env.barrier.omega(n) == step_rules.ENV_RELAXATION == 1.5
+    env = marbler_jax.make("warehouse", n_agents=20, start_dist=0.3, cbf_iterations=7, cbf_relaxation=1.2)
+    assert (env.barrier.iterations, env.barrier.omega(20)) == (7, 1.2)
+    assert cbf.make_barrier("si2").omega(20) == 1.7
 
 
 def test_scaling_to_twenty_robots():

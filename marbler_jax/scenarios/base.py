@@ -40,10 +40,12 @@ class ScenarioConfig:
         barrier_certificate: ``"safe"`` (MARBLER default: certificate2, radius 0.2), ``"default"``
             (certificate, radius 0.17), ``"none"``, or an SI kind of :mod:`marbler_jax.cbf`.
         cbf_iterations: solver sweeps of the barrier per control refresh (``None``:
-            :func:`marbler_jax.step_rules.default_cbf_iterations`, ``8 + N`` cold or ``3 + 3N/4``
-            warm-started at ``control_period=1``, chosen on env trajectories; see
-            :func:`marbler_jax.cbf.default_iterations` for the budget that matches arbitrary,
-            overlapping configurations at any N).
+            :func:`marbler_jax.step_rules.default_cbf_iterations`, 12 cold or 6 warm-started at
+            ``control_period=1`` for 4 robots, 20 cold or 10 warm for 20, chosen on env
+            trajectories; see :func:`marbler_jax.cbf.default_iterations` for the budget that
+            matches arbitrary, overlapping configurations at any N).
+        cbf_relaxation: over-relaxation of those sweeps, in (0, 2) (``None``:
+            :data:`marbler_jax.step_rules.ENV_RELAXATION` = 1.5).
         cbf_warm_start: start each control refresh's barrier sweeps from the previous refresh's
             multipliers (kept in the env state, zero at reset). The QP's solution does not depend
             on the start, only how close the fixed sweep budget gets to it. ``None`` (default): on
@@ -62,6 +64,7 @@ class ScenarioConfig:
     control_period: int = 1
     barrier_certificate: str = "safe"
     cbf_iterations: int | None = None
+    cbf_relaxation: float | None = None
     cbf_warm_start: bool | None = None
     penalize_violations: bool = True
     physics: str = "robotarium"
@@ -85,6 +88,8 @@ class ScenarioConfig:
             raise ValueError(f"barrier_certificate={self.barrier_certificate!r} is not one of {list(BARRIERS)}")
         if self.cbf_iterations is not None:
             _positive_int(self, "cbf_iterations")
+        if self.cbf_relaxation is not None and not 0 < self.cbf_relaxation < 2:
+            raise ValueError(f"cbf_relaxation={self.cbf_relaxation!r} must lie in (0, 2) (over-relaxation of the barrier sweeps)")
         from marbler_jax import physics
 
         physics.get_params(self.physics)
