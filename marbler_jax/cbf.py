@@ -471,7 +471,6 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
                                  None if heads is None else xp.concatenate([heads, pad2[:, 0]], axis=0))
     usable = d2 > 0
     inv_norm = xp.where(usable, 1 / xp.sqrt(xp.where(usable, d2, 1)), 0)  # 1/|e|, 0 where unusable
-    scale = 2 * d2 * inv_norm                                             # lambda' = 2 |e| lambda
     nx, ny = e[:, :, 0] * inv_norm, e[:, :, 1] * inv_norm
     bs = b * (0.5 * inv_norm)
     order = _polygon(n)
@@ -542,7 +541,7 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
     wheels0 = (zero_wheel,) * 4 if wheeled else ()
     if warm_start is not None:
         # Rows that cannot act (phantom, coincident robots) start at zero; u0 = u_hat - A^T lambda0.
-        lam_w = xp.maximum(to_minor(warm_start.pairs, nb, xp), 0) * scale   # [R, H, B], scaled
+        lam_w = xp.maximum(to_minor(warm_start.pairs, nb, xp), 0) * (2 * d2 * inv_norm)  # scaled by 2|e|
         inc = xp.asarray(_incidence(n)[:n], dtype=dtype)
         u0 = u0 + xp.stack([xp.einsum("srh,rhb->sb", inc, nx * lam_w),
                             xp.einsum("srh,rhb->sb", inc, ny * lam_w)], axis=1)

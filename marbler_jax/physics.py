@@ -282,8 +282,8 @@ def _held_ticks(params: RobotariumParams, ticks: int, stop_on_violation: bool, p
             gaps = []
             for shift in range(1, n // 2 + 1):
                 rows = n // 2 if 2 * shift == n else n   # the half-way shift meets each pair twice
-                dx = xp.concatenate([cx[shift:], cx[:shift]], axis=0)[:rows] - cx[:rows]
-                dy = xp.concatenate([cy[shift:], cy[:shift]], axis=0)[:rows] - cy[:rows]
+                dx = xp.roll(cx, -shift, axis=0)[:rows] - cx[:rows]   # robot i + shift minus robot i
+                dy = xp.roll(cy, -shift, axis=0)[:rows] - cy[:rows]
                 gaps.append(dx * dx + dy * dy)
             return xp.any(xp.concatenate(gaps, axis=0) <= diam2, axis=0)
         hit = false

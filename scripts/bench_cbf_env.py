@@ -37,9 +37,13 @@ from marbler_jax.step_rules import ENV_RELAXATION, finish_step  # noqa: E402
 from marbler_jax.rollout import random_actions  # noqa: E402
 
 
+def team(n: int) -> dict:
+    """Warehouse overrides for ``n`` robots: beyond MARBLER's 6 a 0.3 m spawn spacing (the default 0.6 m grid holds 11)."""
+    return dict(n_agents=n, **({"start_dist": 0.3} if n > 6 else {}))
+
+
 def make_env(n: int, period: int, **overrides):
-    spacing = {"start_dist": 0.3} if n > 6 else {}
-    return marbler_jax.make("warehouse", n_agents=n, control_period=period, **spacing, **overrides)
+    return marbler_jax.make("warehouse", control_period=period, **team(n), **overrides)
 
 
 def accuracy(n: int, period: int, budgets, n_envs: int, steps: int, seed: int = 0):
@@ -47,14 +51,14 @@ def accuracy(n: int, period: int, budgets, n_envs: int, steps: int, seed: int = 
     ``budgets``, a list of ``(sweeps, relaxation)``."""
     env = make_env(n, period)
     ref = cbf.make_barrier("si2", safety_radius=0.2, iterations=400)
-    keys = list(budgets)
-    budgets = [cbf.make_barrier("si2", safety_radius=0.2, iterations=k, relaxation=r) for k, r in keys]
+    budgets = list(budgets)
+    solvers = [cbf.make_barrier("si2", safety_radius=0.2, iterations=k, relaxation=r) for k, r in budgets]
     total = env.config.update_frequency
 
     def episode(key):
         k_reset, key = jax.random.split(key)
         _, state = env.reset(k_reset)
-        warm = [b.initial_multipliers(n, (), jnp.float32, jnp) for b in budgets]
+        warm = [b.initial_multipliers(n, (), jnp.float32, jnp) for b in solvers]
 
         def step(carry, key):
             state, warm = carry
@@ -69,7 +73,7 @@ def accuracy(n: int, period: int, budgets, n_envs: int, steps: int, seed: int = 
                 u_ref = ref(dxi, xi)
                 tol = 5e-4 + 1e-3 * jnp.abs(u_ref).max()
                 row, new_warm = [], []
-                for b, w in zip(budgets, warm):
+                for b, w in zip(solvers, warm):
                     u_cold, info_cold = b.solve(dxi, xi)
                     u_warm, info_warm = b.solve(dxi, xi, warm_start=w)
                     new_warm.append(info_warm.multipliers)
@@ -96,10 +100,10 @@ def accuracy(n: int, period: int, budgets, n_envs: int, steps: int, seed: int = 
         return jax.lax.scan(step, (state, warm), jax.random.split(key, steps))[1]
 
     out = np.asarray(jax.jit(jax.vmap(episode))(jax.random.split(jax.random.PRNGKey(seed), n_envs)))
-    out = out.reshape(-1, len(keys), 4)                        # [refreshes, budget, 4]
+    out = out.reshape(-1, len(budgets), 4)                        # [refreshes, budget, 4]
     return {key: dict(cold_match=float(out[:, i, 0].mean()), warm_match=float(out[:, i, 1].mean()),
                       cold_max_violation=float(out[:, i, 2].max()), warm_max_violation=float(out[:, i, 3].max()))
-            for i, key in enumerate(keys)}
+            for i, key in enumerate(budgets)}
 
 
 def closed_loop_drift(name: str, period: int, budgets, batch: int = 512, steps: int = 40, **overrides):
@@ -180,9 +184,7 @@ def main(argv=None):
                       f"(max violation cold {r['cold_max_violation']:.2e}, warm {r['warm_max_violation']:.2e})", flush=True)
     drift = []
     if args.drift:
-        overrides = {}
-        if args.drift_agents:
-            overrides = dict(n_agents=args.drift_agents, **({"start_dist": 0.3} if args.drift_agents > 6 else {}))
+        overrides = team(args.drift_agents) if args.drift_agents else {}
         for period in args.periods:
             for (k, w), r in closed_loop_drift(args.drift, period, budgets, steps=args.drift_steps, **overrides).items():
                 drift.append(dict(scenario=args.drift, control_period=period, sweeps=k, relaxation=w,
