@@ -32,8 +32,8 @@ def policy_tensors(algo: str, cfg, params) -> tuple[dict, dict]:
         return fields, _float32(flatten_params({"actor": actor}, "."))
     agent = params["agent"]["params"]
     memory = QAgent(1, cfg.hidden, cfg.recurrent, cfg.cell).memory
-    fields = dict(kind="q_agent", recurrent=memory != "none", cell=memory, hidden=cfg.hidden, activation="relu",
-                  layers=[])
+    fields = dict(kind="q_agent", recurrent=memory != "none", cell=memory, layer_norm=bool(cfg.layer_norm),
+                  hidden=cfg.hidden, activation="relu", layers=[])
     return fields, _float32(flatten_params(agent, "."))
 
 

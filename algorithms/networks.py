@@ -104,18 +104,26 @@ class QAgent(nn.Module):
     * ``"none"`` -- feed-forward: ``Dense(H) -> ReLU`` instead of the cell; ``hidden`` passes
       through unchanged.
 
-    ``recurrent=False`` is the older spelling of ``cell="none"``.
+    ``layer_norm=True`` puts a ``LayerNorm`` (learned scale and bias, epsilon 1e-6) between every
+    hidden ``Dense`` and its ReLU (``fc1``, and ``fc_out`` / ``fc_hidden``), as PQN (Gallici et al.
+    2024) does to keep Q-learning without a replay buffer stable. ``recurrent=False`` is the older
+    spelling of ``cell="none"``.
     """
 
     num_actions: int
     hidden: int = 128
     recurrent: bool = True
     cell: str = "gru"
+    layer_norm: bool = False
 
     def setup(self):
         if self.memory not in CELLS:
             raise ValueError(f"cell must be one of {list(CELLS)}, got {self.cell!r}")
         self.fc1 = nn.Dense(self.hidden)
+        if self.layer_norm:
+            self.ln1 = nn.LayerNorm()
+            if self.memory != "gru":
+                self.ln_out = nn.LayerNorm()
         if self.memory == "gru":
             self.gru = nn.GRUCell(self.hidden, recurrent_kernel_init=orthogonal())
         elif self.memory == "mingru":
@@ -134,11 +142,20 @@ class QAgent(nn.Module):
         z = nn.sigmoid(gates[..., :self.hidden])
         return 1.0 - z, z * gates[..., self.hidden:]
 
+    def _norm(self, name, x):
+        return getattr(self, name)(x) if self.layer_norm else x
+
+    def _input_layer(self, obs):
+        return nn.relu(self._norm("ln1", self.fc1(obs)))
+
     def _mingru_head(self, hidden):
-        return self.fc2(nn.relu(self.fc_out(hidden)))
+        return self.fc2(nn.relu(self._norm("ln_out", self.fc_out(hidden))))
+
+    def _feed_forward_head(self, x):
+        return self.fc2(nn.relu(self._norm("ln_out", self.fc_hidden(x))))
 
     def __call__(self, hidden, obs, reset):
-        x = nn.relu(self.fc1(obs))
+        x = self._input_layer(obs)
         if self.memory == "gru":
             hidden = jnp.where(reset, 0.0, hidden)
             hidden, x = self.gru(hidden, x)
@@ -147,7 +164,7 @@ class QAgent(nn.Module):
             keep, write = self._mingru_gates(x)
             hidden = keep * jnp.where(reset, 0.0, hidden) + write
             return hidden, self._mingru_head(hidden)
-        return hidden, self.fc2(nn.relu(self.fc_hidden(x)))
+        return hidden, self._feed_forward_head(x)
 
     def sequence(self, obs, reset):
         """Q-values ``[T, ..., A]`` along sequences ``obs [T, ..., D]`` from a zero hidden state
@@ -156,9 +173,9 @@ class QAgent(nn.Module):
         by the caller's own scan)."""
         if self.memory == "gru":
             raise ValueError("QAgent.sequence is for cell='mingru' or 'none'; step a GRU with __call__")
-        x = nn.relu(self.fc1(obs))
+        x = self._input_layer(obs)
         if self.memory == "none":
-            return self.fc2(nn.relu(self.fc_hidden(x)))
+            return self._feed_forward_head(x)
         keep, write = self._mingru_gates(x)
         keep = jnp.where(reset, 0.0, keep)
 

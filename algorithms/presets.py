@@ -15,6 +15,16 @@ a CPU by design (GRU-128 gradient steps dominate: ~1k env-steps/s).
 collected episode), target copies every 100 gradient steps, a longer epsilon decay; PPO with 64
 envs x 64 steps. ``"none"`` leaves every setting at the algorithm's and scenario's defaults.
 
+``"parallel"`` trains the value-based learners the way PQN (Gallici et al. 2024, "Simplifying deep
+temporal difference learning") does: many parallel episodes per update (256), no replay beyond them
+(the buffer holds exactly the update's own sequences), each sample used 4 times (16 gradient steps of
+64 sequences), TD(lambda = 0.65) targets from the network that collected the episodes (the target copy
+is refreshed once per update; max instead of double-Q), minimal-GRU agents and a learning rate decaying
+to 0 over 50M env steps. It spends 8x less gradient work per env step than ``fast``: VDN on PCP runs
+52-62k env-steps/s (one or two learner devices) and reaches 28-31 in ~14 minutes (``fast`` recipes:
+~9k env-steps/s, ~31-32 in 15 minutes; RESULTS.md). PQN's LayerNorm is an option (``layer_norm``),
+off here: on this CPU it cost 1.7x the wall time for ~1 point per sample. IPPO/MAPPO use ``fast``.
+
 The value-based ``fast`` setting used 4 gradient steps per update (one per 8 episodes) until
 2026-11-21: 8x the env-steps/s (~21k vs ~2.7k), but VDN on PCP levelled off at a training return of
 ~16 (greedy 16-18, 2 seeds, still 15.6 after 5M steps), where one step per episode reaches 23-29
@@ -23,7 +33,7 @@ these learners need.
 """
 from __future__ import annotations
 
-PRESET_NAMES = ("fast", "paper", "none")
+PRESET_NAMES = ("fast", "parallel", "paper", "none")
 
 _PAPER_ENV = {"control_period": 15}
 
@@ -54,6 +64,16 @@ _FAST_HP = {
 
 _PAPER_STEPS = {"mappo": 25_000_000, "ippo": 25_000_000}
 
+# PQN-style value learning (Gallici et al. 2024): 256 fresh episodes per update, no replay beyond them
+# (buffer = the update's own sequences), 16 gradient steps of 64 sequences (each sample used 4 times),
+# TD(lambda) targets from the network as it was when the episodes were collected (target copied once
+# per update, max instead of double-Q), minimal-GRU agents, lr decaying to 0.
+_PARALLEL_Q = dict(hidden=64, cell="mingru", num_envs=256, buffer_size=256, batch_size=64,
+                   train_steps=16, target_update_interval=16, td_lambda=0.65, double_q=False, lr=5e-4,
+                   lr_decay=True, eps_decay_steps=5_000_000, learning_starts=0)
+
+_PARALLEL_HP = {"vdn": _PARALLEL_Q, "qmix": dict(_PARALLEL_Q, lr=3e-4), "qmix_ns": _PARALLEL_Q}
+
 
 def preset(name: str, scenario: str, algo: str) -> tuple[dict, dict, int]:
     """``(env_overrides, hyperparameters, total_steps)`` of preset ``name`` for ``algo`` on ``scenario``."""
@@ -63,6 +83,9 @@ def preset(name: str, scenario: str, algo: str) -> tuple[dict, dict, int]:
         return {}, {}, 1_000_000
     if name == "paper":
         return dict(_PAPER_ENV), dict(_PAPER_HP[algo]), _PAPER_STEPS.get(algo, 5_000_000)
+    if name == "parallel" and algo in _PARALLEL_HP:      # IPPO/MAPPO: already parallel, same as "fast"
+        steps = 5_000_000 if scenario == "simple_navigation" else 50_000_000
+        return dict(_PAPER_ENV), dict(_PARALLEL_HP[algo]), steps
     steps = 300_000 if scenario == "simple_navigation" else 3_000_000
     return dict(_PAPER_ENV), dict(_FAST_HP[algo]), steps
 

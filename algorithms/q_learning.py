@@ -78,6 +78,7 @@ class QConfig:
     hidden: int = 128
     recurrent: bool = True           # False: feed-forward agents (same as cell="none")
     cell: str = "gru"                # gru | mingru | none (algorithms.networks.QAgent)
+    layer_norm: bool = False         # LayerNorm before the agents' hidden ReLUs (PQN's stabiliser)
     shared: bool = True
     agent_ids: bool = True
     learner_devices: int = 1         # > 1: each gradient step's batch split over this many devices
@@ -163,7 +164,7 @@ def sequence_length(env, cfg: QConfig) -> int:
 
 
 def agent_module(env, cfg: QConfig) -> QAgent:
-    return QAgent(env.num_actions, cfg.hidden, cfg.recurrent, cfg.cell)
+    return QAgent(env.num_actions, cfg.hidden, cfg.recurrent, cfg.cell, cfg.layer_norm)
 
 
 def agent_inputs(cfg: QConfig, obs):

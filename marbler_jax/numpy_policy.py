@@ -6,14 +6,17 @@ server). A policy folder, written by ``marbler-jax export`` (:mod:`algorithms.ex
 * ``policy_spec.npy`` -- a 0-d unicode array holding JSON: ``format``, ``kind`` (``"q_agent"`` for
   VDN/QMIX/QMIX_NS, ``"actor"`` for IPPO/MAPPO), ``recurrent``, ``cell`` (``"gru"``, ``"mingru"``
   or ``"none"``; absent in older folders, where it is ``"gru"`` if ``recurrent``), ``shared``, ``agent_ids``,
-  ``num_agents``, ``obs_dim``, ``num_actions``, ``hidden``, ``activation``, ``layers`` (actor MLP
-  layer names in order) and ``tensors`` (parameter name -> file name).
+  ``layer_norm`` (Q-agents; absent in older folders, where it is false), ``num_agents``, ``obs_dim``,
+  ``num_actions``, ``hidden``, ``activation``, ``layers`` (actor MLP layer names in order) and
+  ``tensors`` (parameter name -> file name).
 * one ``.npy`` per parameter tensor (``float32``; with a leading agent axis when not shared).
 
 Everything loads with ``np.load(path, allow_pickle=False)``. Network equations (the same as the
 flax modules in ``algorithms/networks.py``):
 
-* ``q_agent``: ``x = relu(obs W_fc1 + b)``; recurrent: flax ``GRUCell`` --
+* ``q_agent``: ``x = relu(obs W_fc1 + b)`` (with ``layer_norm``, every ``relu(y)`` of a hidden
+  layer is ``relu(LN(y))``, ``LN(y) = (y - mean(y)) / sqrt(var(y) + 1e-6) * scale + bias`` over the
+  last axis, parameters ``ln1`` after ``fc1`` and ``ln_out`` after ``fc_out`` / ``fc_hidden``); recurrent: flax ``GRUCell`` --
   ``r = s(x W_ir + b_ir + h W_hr)``, ``z = s(x W_iz + b_iz + h W_hz)``,
   ``n = tanh(x W_in + b_in + r * (h W_hn + b_hn))``, ``h' = (1 - z) n + z h``, ``x = h'``;
   minimal GRU: ``[g_z, g_c] = x W_mingru + b``, ``z = s(g_z)``, ``h' = (1 - z) h + z g_c``,
@@ -50,6 +53,7 @@ class NumpyPolicy:
         self.obs_dim = int(spec["obs_dim"])
         self.recurrent = bool(spec["kind"] == "q_agent" and spec["recurrent"])
         self.cell = spec.get("cell", "gru") if self.recurrent else "none"
+        self.layer_norm = bool(spec.get("layer_norm", False))
         if self.cell not in CELLS:
             raise ValueError(f"unsupported recurrent cell {self.cell!r} in the policy spec; "
                              f"expected one of {list(CELLS)}")
@@ -66,6 +70,15 @@ class NumpyPolicy:
         else:                      # per-agent parameters: agent i's kernel on agent i's row
             y = np.einsum("...ni,nio->...no", x, kernel)
         return y if bias is None else y + bias
+
+    def _relu_layer(self, name, norm, x):
+        """``relu(x W + b)``, layer-normalised first (flax ``LayerNorm``: epsilon 1e-6) with ``layer_norm``."""
+        y = self._dense(name, x)
+        if self.layer_norm:
+            mean = y.mean(-1, keepdims=True)
+            var = np.square(y - mean).mean(-1, keepdims=True)
+            y = (y - mean) / np.sqrt(var + 1e-6) * self.t[f"{norm}.scale"] + self.t[f"{norm}.bias"]
+        return np.maximum(y, 0)
 
     def inputs(self, obs) -> np.ndarray:
         obs = np.asarray(obs, np.float32)
@@ -85,7 +98,7 @@ class NumpyPolicy:
             for name in layers[:-1]:
                 x = act(self._dense(name, x))
             return self._dense(layers[-1], x), hidden
-        x = np.maximum(self._dense("fc1", x), 0)
+        x = self._relu_layer("fc1", "ln1", x)
         if self.recurrent:
             h = self.initial_hidden() if hidden is None else np.asarray(hidden, np.float32)
         if self.cell == "gru":
@@ -99,9 +112,9 @@ class NumpyPolicy:
             width = h.shape[-1]
             z = _sigmoid(gates[..., :width])
             hidden = (1.0 - z) * h + z * gates[..., width:]
-            x = np.maximum(self._dense("fc_out", hidden), 0)
+            x = self._relu_layer("fc_out", "ln_out", hidden)
         else:
-            x = np.maximum(self._dense("fc_hidden", x), 0)
+            x = self._relu_layer("fc_hidden", "ln_out", x)
         return self._dense("fc2", x), hidden
 
     def act(self, obs, hidden=None):

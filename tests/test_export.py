@@ -23,15 +23,24 @@ CASES = {
     "qmix_ns-gru": (qmix, qmix.QMIXNSConfig(hidden=32)),
     "vdn-mingru-shared": (vdn, vdn.VDNConfig(hidden=32, cell="mingru")),
     "qmix_ns-mingru": (qmix, qmix.QMIXNSConfig(hidden=32, cell="mingru")),
+    "vdn-mingru-layernorm": (vdn, vdn.VDNConfig(hidden=32, cell="mingru", layer_norm=True)),
+    "qmix_ns-gru-layernorm": (qmix, qmix.QMIXNSConfig(hidden=32, layer_norm=True)),
+    "qmix-ff-layernorm": (qmix, qmix.QMIXConfig(hidden=32, recurrent=False, layer_norm=True)),
     "ippo-shared": (ippo, ippo.IPPOConfig(hidden=32)),
     "mappo-per-agent": (mappo, mappo.MAPPOConfig(hidden=32, shared=False, activation="relu")),
 }
 ALGO = {"vdn-gru-shared": "vdn", "qmix-ff-shared": "qmix", "qmix_ns-gru": "qmix_ns", "ippo-shared": "ippo",
-        "mappo-per-agent": "mappo", "vdn-mingru-shared": "vdn", "qmix_ns-mingru": "qmix_ns"}
+        "mappo-per-agent": "mappo", "vdn-mingru-shared": "vdn", "qmix_ns-mingru": "qmix_ns",
+        "vdn-mingru-layernorm": "vdn", "qmix_ns-gru-layernorm": "qmix_ns", "qmix-ff-layernorm": "qmix"}
 
 
 def _params(module, cfg, env, seed=0):
-    return module.make_train(env, cfg).init(jax.random.PRNGKey(seed))["params"]
+    """Initial parameters, every one perturbed (LayerNorm's scale 1 / bias 0 would hide a misuse)."""
+    params = module.make_train(env, cfg).init(jax.random.PRNGKey(seed))["params"]
+    leaves, tree = jax.tree_util.tree_flatten(params)
+    keys = jax.random.split(jax.random.PRNGKey(seed + 100), len(leaves))
+    return jax.tree_util.tree_unflatten(
+        tree, [x + 0.1 * jax.random.normal(k, x.shape, x.dtype) for x, k in zip(leaves, keys)])
 
 
 @pytest.mark.parametrize("case", sorted(CASES))

@@ -52,11 +52,11 @@ def test_vmapped_inits_never_hand_lapack_a_batch_of_matrices():
 
 
 @pytest.mark.parametrize("cell", ["mingru", "none"])
-@pytest.mark.parametrize("shared", [True, False])
-def test_q_agent_sequence_equals_stepping_with_resets(cell, shared):
+@pytest.mark.parametrize("shared,layer_norm", [(True, False), (False, False), (True, True)])
+def test_q_agent_sequence_equals_stepping_with_resets(cell, shared, layer_norm):
     """``QAgent.sequence`` (one matmul per layer for all steps + an elementwise scan) gives the
     Q-values of stepping ``__call__`` one step at a time, memory zeroed where ``reset``."""
-    agent = QAgent(num_actions=5, hidden=16, cell=cell)
+    agent = QAgent(num_actions=5, hidden=16, cell=cell, layer_norm=layer_norm)
     n, d, steps, batch = 3, 7, 12, 4
     sample = (agent.initial_hidden((1,))[0], jnp.zeros((d,)), jnp.zeros((1,), bool))
     params = init_agents(agent, jax.random.PRNGKey(0), sample, n, shared)

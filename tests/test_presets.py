@@ -36,6 +36,21 @@ def test_paper_mappo_preset_and_unknown_names():
     assert (mappo.hidden, mappo.lr, mappo.update_epochs, mappo.clip_eps, mappo.ent_coef) == (128, 2e-4, 4, 0.2, 0.01)
     assert steps == 25_000_000
     assert preset("none", "warehouse", "vdn") == ({}, {}, 1_000_000)
-    assert set(PRESET_NAMES) == {"fast", "paper", "none"}
-    with pytest.raises(ValueError, match=r"unknown preset 'epymarl'; available: \['fast', 'paper', 'none'\]"):
+    assert set(PRESET_NAMES) == {"fast", "parallel", "paper", "none"}
+    with pytest.raises(ValueError, match=r"unknown preset 'epymarl'; available: \['fast', 'parallel', 'paper', 'none'\]"):
         preset("epymarl", "warehouse", "vdn")
+
+
+@pytest.mark.parametrize("algo", ["vdn", "qmix", "qmix_ns"])
+def test_parallel_preset_learns_from_fresh_episodes_only(algo):
+    """``parallel``: PQN-style -- the buffer holds only the update's own episodes, each used 4 times,
+    TD(lambda) targets from the network that collected them (target copied once per update)."""
+    env, hp, steps = preset("parallel", "predator_capture_prey", algo)
+    cfg = build_config(algo, hp)
+    assert env == {"control_period": 15} and steps == 50_000_000
+    assert cfg.buffer_size == cfg.num_envs == 256 and cfg.learning_starts == 0
+    assert cfg.train_steps * cfg.batch_size == 4 * cfg.num_envs
+    assert cfg.target_update_interval == cfg.train_steps and cfg.tau == 1.0
+    assert cfg.td_lambda > 0 and not cfg.double_q and cfg.lr_decay and cfg.cell == "mingru"
+    assert preset("parallel", "simple_navigation", algo)[2] == 5_000_000
+    assert preset("parallel", "predator_capture_prey", "mappo") == preset("fast", "predator_capture_prey", "mappo")
