@@ -42,7 +42,7 @@ def test_paper_mappo_preset_and_unknown_names():
 
 
 @pytest.mark.parametrize("algo", ["vdn", "qmix", "qmix_ns"])
-def test_parallel_preset_learns_from_fresh_episodes_only(algo):
+def test_parallel_preset_trains_on_fresh_episodes_only(algo):
     """``parallel``: PQN-style -- the buffer holds only the update's own episodes, each used 4 times,
     TD(lambda) targets from the network that collected them (target copied once per update)."""
     env, hp, steps = preset("parallel", "predator_capture_prey", algo)
