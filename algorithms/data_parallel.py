@@ -4,7 +4,9 @@
 of ``devices`` devices takes an equal share of the batch argument (its leading axis), computes the
 loss and gradient of its share, and the shares are averaged (``pmean``). For a loss that is a mean
 over equally weighted batch rows this is the whole batch's loss and gradient, equal to one device's
-up to float rounding. Everything else in the jitted program stays replicated on every device.
+up to float rounding. ``split_rows(fn, devices, batch_argnum)`` does the same for a row-wise ``fn``
+(each output row depends on its input row only): the shares' outputs are concatenated. Everything
+else in the jitted program stays replicated on every device.
 
 On a CPU, JAX sees one device unless it is told otherwise before it first runs:
 ``use_cpu_devices(n)`` (what ``marbler-jax train`` calls for ``--hp learner_devices=n``) splits the
@@ -31,28 +33,54 @@ def use_cpu_devices(n: int) -> None:
             pass
 
 
-def split_batch(grad_fn, devices: int, batch_argnum: int):
-    """``grad_fn`` with its ``batch_argnum``-th argument (a pytree of ``[B, ...]`` arrays, ``B``
-    divisible by ``devices``) split over the first ``devices`` devices; returns ``grad_fn`` unchanged
-    for ``devices == 1``."""
-    if devices == 1:
-        return grad_fn
+def _mesh(devices: int) -> Mesh:
     available = jax.devices()
     if len(available) < devices:
         raise ValueError(
             f"learner_devices={devices} needs {devices} devices but JAX has {len(available)} "
             f"({available[0].platform}); on a CPU call algorithms.data_parallel.use_cpu_devices({devices}) "
             f"(or set jax.config 'jax_num_cpu_devices') before JAX first runs -- marbler-jax train does this")
-    mesh = Mesh(np.array(available[:devices]), (AXIS,))
+    return Mesh(np.array(available[:devices]), (AXIS,))
+
+
+def _specs(args, batch_argnum: int):
+    return tuple(PartitionSpec(AXIS) if i == batch_argnum else PartitionSpec() for i in range(len(args)))
+
+
+def split_batch(grad_fn, devices: int, batch_argnum: int):
+    """``grad_fn`` with its ``batch_argnum``-th argument (a pytree of ``[B, ...]`` arrays, ``B``
+    divisible by ``devices``) split over the first ``devices`` devices; returns ``grad_fn`` unchanged
+    for ``devices == 1``."""
+    if devices == 1:
+        return grad_fn
+    mesh = _mesh(devices)
 
     def share(*args):
         return jax.lax.pmean(grad_fn(*args), AXIS)
 
     def wrapped(*args):
-        specs = tuple(PartitionSpec(AXIS) if i == batch_argnum else PartitionSpec() for i in range(len(args)))
-        return jax.shard_map(share, mesh=mesh, in_specs=specs, out_specs=PartitionSpec(), check_vma=False)(*args)
+        return jax.shard_map(share, mesh=mesh, in_specs=_specs(args, batch_argnum), out_specs=PartitionSpec(),
+                             check_vma=False)(*args)
 
     return wrapped
 
 
-__all__ = ["split_batch", "use_cpu_devices"]
+def split_rows(fn, devices: int, batch_argnum: int):
+    """Row-wise ``fn`` (output rows ``[B, ...]`` from input rows) with its ``batch_argnum``-th argument
+    split over ``devices`` devices and the outputs concatenated; ``fn`` itself where ``devices == 1`` or
+    ``B`` is not divisible by ``devices``."""
+    if devices == 1:
+        return fn
+    mesh = _mesh(devices)
+
+    def wrapped(*args):
+        rows = jax.tree_util.tree_leaves(args[batch_argnum])[0].shape[0]
+        if rows % devices:
+            return fn(*args)
+        return jax.shard_map(fn, mesh=mesh, in_specs=_specs(args, batch_argnum), out_specs=PartitionSpec(AXIS),
+                             check_vma=False)(*args)
+
+    return wrapped
+
+
+__all__ = ["split_batch", "split_rows", "use_cpu_devices"]

@@ -1,5 +1,5 @@
-"""Data-parallel value-based learning (``learner_devices``): the same gradient steps as one device,
-and an interrupted VDN run (GRU agents, two seeds, its replay buffer in the checkpoint) resumes
+"""Data-parallel value-based learning (``learner_devices``): the same gradient steps as one device
+(targets per batch, and targets once per update with the buffer's rows split over the devices), and an interrupted VDN run (GRU agents, two seeds, its replay buffer in the checkpoint) resumes
 bit-exactly. JAX picks its CPU device count when it first runs, so
 the two-device checks run in a fresh interpreter."""
 from __future__ import annotations
@@ -33,14 +33,18 @@ TWO_DEVICES = textwrap.dedent("""
     env = marbler_jax.make("predator_capture_prey", control_period=15)
     hp = dict(total_timesteps=3 * 4 * 8, num_envs=4, num_steps=8, buffer_size=16, batch_size=4, learning_starts=0,
               hidden=16, train_steps=3, target_update_interval=2, mixer_embed=8, hypernet_hidden=8)
-    out = {}
-    for devices in (1, 2):
-        trainer = qmix.make_train(env, qmix.QMIXConfig(learner_devices=devices, **hp))
-        out[devices] = jax.jit(trainer)(jax.random.PRNGKey(0))
-    losses = [np.asarray(out[d][1]["loss"]) for d in (1, 2)]
-    assert np.all(np.isfinite(losses[0])), losses
-    np.testing.assert_allclose(losses[0], losses[1], rtol=1e-4)
-    jax.tree_util.tree_map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6), out[1][0], out[2][0])
+    # second case: targets once per update (QMIX_NS, minimal GRU), the buffer's rows split over the devices
+    per_update = dict(hp, buffer_size=12, target_update_interval=3, double_q=False, td_lambda=0.65, cell="mingru")
+    for config, hp in ((qmix.QMIXConfig, hp), (qmix.QMIXNSConfig, per_update)):
+        assert config(**hp).targets_per_update == (config is qmix.QMIXNSConfig)
+        out = {}
+        for devices in (1, 2):
+            trainer = qmix.make_train(env, config(learner_devices=devices, **hp))
+            out[devices] = jax.jit(trainer)(jax.random.PRNGKey(0))
+        losses = [np.asarray(out[d][1]["loss"]) for d in (1, 2)]
+        assert np.all(np.isfinite(losses[0])), losses
+        np.testing.assert_allclose(losses[0], losses[1], rtol=1e-4)
+        jax.tree_util.tree_map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6), out[1][0], out[2][0])
 
     # interrupted + resumed == uninterrupted, bit for bit, with two seeds and two devices
     root = sys.argv[1]

@@ -105,6 +105,46 @@ def test_lambda_returns_match_the_recursive_definition_and_stop_at_episode_ends(
         vdn.VDNConfig(td_lambda=1.5).validate()
 
 
+@pytest.mark.parametrize("module, config, cell, reward_norm", [
+    (vdn, vdn.VDNConfig, "mingru", "none"),
+    (qmix, qmix.QMIXNSConfig, "gru", "standardise"),
+])
+def test_targets_once_per_update_match_targets_per_batch(module, config, cell, reward_norm):
+    """``cache_targets``: the TD(lambda) targets of every buffered sequence computed once per update give
+    the same gradient steps as computing them for each sampled batch (the target network is fixed
+    within the update)."""
+    env = marbler_jax.make("predator_capture_prey", control_period=15)
+    hp = dict(total_timesteps=10**6, num_envs=8, buffer_size=8, batch_size=4, train_steps=4, target_update_interval=4,
+              td_lambda=0.65, double_q=False, learning_starts=0, hidden=16, cell=cell, lr=1e-3, reward_norm=reward_norm)
+    out = {}
+    for cache in (True, False):
+        cfg = config(cache_targets=cache, **hp)
+        assert cfg.targets_per_update == cache
+        trainer = module.make_train(env, cfg)
+        out[cache] = jax.jit(lambda key: trainer.run(trainer.init(key), 3))(jax.random.PRNGKey(0))
+    runners, metrics = zip(out[True], out[False])
+    np.testing.assert_allclose(metrics[0]["loss"], metrics[1]["loss"], rtol=1e-5)
+    assert not np.allclose(metrics[0]["loss"][0], metrics[0]["loss"][-1])        # the steps did change the params
+    jax.tree_util.tree_map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6),
+                           runners[0]["params"], runners[1]["params"])
+    jax.tree_util.tree_map(np.testing.assert_array_equal, runners[0]["buffer"], runners[1]["buffer"])
+
+
+def test_targets_are_computed_once_per_update_only_where_that_is_exact_and_cheaper():
+    per_update = dict(num_envs=8, buffer_size=8, batch_size=4, train_steps=4, target_update_interval=8, double_q=False)
+    assert vdn.VDNConfig(**per_update).targets_per_update
+    for change in (dict(double_q=True),                  # needs the online network's next-step argmax
+                   dict(tau=0.5),                        # target moves after every gradient step
+                   dict(target_update_interval=6),       # target copied in the middle of an update
+                   dict(buffer_size=32),                 # more sequences than the update samples: dearer
+                   dict(cache_targets=False)):
+        assert not vdn.VDNConfig(**dict(per_update, **change)).targets_per_update, change
+    _, hp, _ = preset("parallel", "predator_capture_prey", "qmix_ns")
+    assert qmix.QMIXNSConfig(**hp).targets_per_update
+    _, hp, _ = preset("fast", "predator_capture_prey", "vdn")
+    assert not vdn.VDNConfig(**hp).targets_per_update
+
+
 def test_shared_and_per_agent_parameter_shapes():
     env = marbler_jax.make("material_transport")
     small = dict(total_timesteps=4 * 71, num_envs=4, buffer_size=8, batch_size=2, learning_starts=0, hidden=16)
@@ -163,7 +203,9 @@ def test_vdn_learns_simple_navigation_from_fresh_episodes_only():
     assert hp["buffer_size"] == hp["num_envs"] and hp["train_steps"] == hp["target_update_interval"]
     hp.update(num_envs=32, buffer_size=32, batch_size=32, train_steps=4, target_update_interval=4,
               eps_decay_steps=40_000, lr=1e-3)
-    _learns(vdn, vdn.VDNConfig(total_timesteps=200_000, **hp))
+    cfg = vdn.VDNConfig(total_timesteps=200_000, **hp)
+    assert cfg.targets_per_update          # as the preset: targets once per update
+    _learns(vdn, cfg)
 
 
 def test_qmix_learns_simple_navigation():
