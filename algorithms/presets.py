@@ -20,9 +20,10 @@ temporal difference learning") does: many parallel episodes per update (256), no
 (the buffer holds exactly the update's own sequences), each sample used 4 times (16 gradient steps of
 64 sequences), TD(lambda = 0.65) targets from the network that collected the episodes (the target copy
 is refreshed once per update; max instead of double-Q), minimal-GRU agents and a learning rate decaying
-to 0 over 50M env steps. It spends 8x less gradient work per env step than ``fast``: VDN on PCP runs
-52-62k env-steps/s (one or two learner devices) and reaches 28-31 in ~14 minutes (``fast`` recipes:
-~9k env-steps/s, ~31-32 in 15 minutes; RESULTS.md). PQN's LayerNorm is an option (``layer_norm``),
+to 0 over 50M env steps. It spends 8x less gradient work per env step than ``fast`` and computes its
+targets once per update (``cache_targets``): VDN on PCP runs 71-82k env-steps/s (one or two learner
+devices) and reached 28-31 in ~14 minutes, QMIX_NS 32.6 in 15.4 (``fast`` recipes: ~9k env-steps/s,
+~31-32 in 15 minutes; RESULTS.md). PQN's LayerNorm is an option (``layer_norm``),
 off here: on this CPU it cost 1.7x the wall time for ~1 point per sample. IPPO/MAPPO use ``fast``.
 
 The value-based ``fast`` setting used 4 gradient steps per update (one per 8 episodes) until
