@@ -20,6 +20,8 @@ module is everything else, as in EPyMARL:
   the team reward (the scenario's reported reward) and the target networks' mixer. Target networks
   are copied every ``target_update_interval`` gradient steps (``tau = 1``) or Polyak-averaged with
   ``tau`` after every step. Learning starts once the buffer holds ``learning_starts`` env steps.
+  ``learner_devices > 1`` splits each gradient step's batch over that many devices
+  (:mod:`algorithms.data_parallel`).
 * **Targets once per update** (``cache_targets``, on by default). When the target network cannot change
   within an update (hard copies at update boundaries: ``tau = 1`` and ``target_update_interval`` a
   multiple of ``train_steps``), the targets do not need the online network (``double_q`` off), and
@@ -27,8 +29,6 @@ module is everything else, as in EPyMARL:
   train_steps * batch_size``), the targets of every buffered sequence are computed once at the start of
   the update and each gradient step runs the online network only. The result is the same as computing
   them per batch (up to float rounding); PQN-style runs (``--preset parallel``) spend ~4x less on targets.
-  ``learner_devices > 1`` splits each gradient step's batch over that many devices
-  (:mod:`algorithms.data_parallel`).
 
 Choices (documented where EPyMARL differs): the end of an episode by MARBLER's step limit is
 treated as terminal (the observations carry no time, and MARBLER returns ``done`` there);
