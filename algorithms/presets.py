@@ -20,10 +20,11 @@ temporal difference learning") does: many parallel episodes per update (256), no
 (the buffer holds exactly the update's own sequences), each sample used 4 times (16 gradient steps of
 64 sequences), TD(lambda = 0.65) targets from the network that collected the episodes (the target copy
 is refreshed once per update; max instead of double-Q), minimal-GRU agents and a learning rate decaying
-to 0 over 50M env steps. It spends 8x less gradient work per env step than ``fast`` and computes its
-targets once per update (``cache_targets``): VDN on PCP runs 71-82k env-steps/s (one or two learner
-devices) and reached 28-31 in ~14 minutes, QMIX_NS 32.6 in 15.4 (``fast`` recipes: ~9k env-steps/s,
-~31-32 in 15 minutes; RESULTS.md). PQN's LayerNorm is an option (``layer_norm``),
+to 0 over 50M env steps (QMIX_NS: lambda 0.8, epsilon down to 0.01, 45M steps). It spends 8x less
+gradient work per env step than ``fast`` and computes its targets once per update
+(``cache_targets``): VDN on PCP runs 71-82k env-steps/s (one or two learner devices) and reached 28-31
+in ~14 minutes, QMIX_NS 32.6-32.9 in 13-15 (``fast`` recipes: ~9k env-steps/s, ~31-32 in 15 minutes;
+RESULTS.md). PQN's LayerNorm is an option (``layer_norm``),
 off here: on this CPU it cost 1.7x the wall time for ~1 point per sample. IPPO/MAPPO use ``fast``.
 
 The value-based ``fast`` setting used 4 gradient steps per update (one per 8 episodes) until
@@ -73,7 +74,13 @@ _PARALLEL_Q = dict(hidden=64, cell="mingru", num_envs=256, buffer_size=256, batc
                    train_steps=16, target_update_interval=16, td_lambda=0.65, double_q=False, lr=5e-4,
                    lr_decay=True, eps_decay_steps=5_000_000, learning_starts=0)
 
-_PARALLEL_HP = {"vdn": _PARALLEL_Q, "qmix": dict(_PARALLEL_Q, lr=3e-4), "qmix_ns": _PARALLEL_Q}
+# QMIX_NS: longer TD(lambda) traces and less exploration noise once epsilon has decayed learn faster on PCP
+# (greedy test 29.4-30.1 at 13.5M steps, two seeds, against 17-25 at 13.5-15M in four runs with epsilon
+# 0.05 and lambda 0.65 or 0.8), so 45M steps (13-14 minutes) end at least where 50M did: 32.88 / 32.55
+# (500 episodes) against 32.54 / 32.59 (RESULTS.md).
+_PARALLEL_HP = {"vdn": _PARALLEL_Q, "qmix": dict(_PARALLEL_Q, lr=3e-4),
+                "qmix_ns": dict(_PARALLEL_Q, td_lambda=0.8, eps_finish=0.01)}
+_PARALLEL_STEPS = {"qmix_ns": 45_000_000}
 
 
 def preset(name: str, scenario: str, algo: str) -> tuple[dict, dict, int]:
@@ -85,7 +92,7 @@ def preset(name: str, scenario: str, algo: str) -> tuple[dict, dict, int]:
     if name == "paper":
         return dict(_PAPER_ENV), dict(_PAPER_HP[algo]), _PAPER_STEPS.get(algo, 5_000_000)
     if name == "parallel" and algo in _PARALLEL_HP:      # IPPO/MAPPO: already parallel, same as "fast"
-        steps = 5_000_000 if scenario == "simple_navigation" else 50_000_000
+        steps = 5_000_000 if scenario == "simple_navigation" else _PARALLEL_STEPS.get(algo, 50_000_000)
         return dict(_PAPER_ENV), dict(_PARALLEL_HP[algo]), steps
     steps = 300_000 if scenario == "simple_navigation" else 3_000_000
     return dict(_PAPER_ENV), dict(_FAST_HP[algo]), steps
