@@ -77,7 +77,7 @@ _PARALLEL_Q = dict(hidden=64, cell="mingru", num_envs=256, buffer_size=256, batc
 # QMIX_NS: longer TD(lambda) traces and less exploration noise once epsilon has decayed learn faster on PCP
 # (greedy test 29.4-30.1 at 13.5M steps, two seeds, against 17-25 at 13.5-15M in four runs with epsilon
 # 0.05 and lambda 0.65 or 0.8), so 45M steps (13-14 minutes) end at least where 50M did: 32.88 / 32.55
-# (500 episodes) against 32.54 / 32.59 (RESULTS.md).
+# (500 episodes; seed 2: 33.03) against 32.54 / 32.59 (RESULTS.md).
 _PARALLEL_HP = {"vdn": _PARALLEL_Q, "qmix": dict(_PARALLEL_Q, lr=3e-4),
                 "qmix_ns": dict(_PARALLEL_Q, td_lambda=0.8, eps_finish=0.01)}
 _PARALLEL_STEPS = {"qmix_ns": 45_000_000}
