@@ -261,8 +261,7 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         def step(carry, key):
             obs, state, hidden, reset = carry
             k_explore, k_random, k_env = jax.random.split(key, 3)
-            hidden, q = q_values(params["agent"], hidden, obs,
-                                 jnp.broadcast_to(reset[:, None, None], (cfg.num_envs, n_agents, 1)))
+            hidden, q = q_values(params["agent"], hidden, obs, agent_resets(reset))
             explore = jax.random.uniform(k_explore, (cfg.num_envs, n_agents)) < eps
             random = jax.random.randint(k_random, (cfg.num_envs, n_agents), 0, env.num_actions)
             actions = jnp.where(explore, random, jnp.argmax(q, -1)).astype(jnp.int32)
@@ -324,9 +323,10 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
                                 cfg.learner_devices, batch_argnum=2)
     buffer_targets = split_rows(update_targets, cfg.learner_devices, batch_argnum=1)
 
-    def learn(moments, carry, key):
-        """One gradient step; ``moments`` (the reward statistics) stay fixed within an update."""
-        params, target, opt_state, buffer, grad_steps = carry
+    def learn(moments, buffer, carry, key):
+        """One gradient step on a batch from ``buffer``; ``moments`` (the reward statistics) and the
+        buffer stay fixed within an update."""
+        params, target, opt_state, grad_steps = carry
         batch = episode_buffer.sample(buffer, key, cfg.batch_size)
         loss, grads = loss_and_grad(params, target, batch, moments)
         updates, opt_state = tx.update(grads, opt_state, params)
@@ -337,7 +337,7 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         else:
             copy = grad_steps % cfg.target_update_interval == 0
             target = jax.tree_util.tree_map(lambda p, t: jnp.where(copy, p, t), params, target)
-        return (params, target, opt_state, buffer, grad_steps), loss
+        return (params, target, opt_state, grad_steps), loss
 
     def update(runner, key):
         k_collect, k_learn = jax.random.split(key)
@@ -346,19 +346,20 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         sequences, metrics = collect(runner["params"], k_collect, eps)
         buffer = episode_buffer.add(runner["buffer"], sequences)
         moments = update_moments(runner["reward_moments"], sequences["reward"])
-        carry = (runner["params"], runner["target"], runner["opt_state"], buffer, runner["grad_steps"])
+        carry = (runner["params"], runner["target"], runner["opt_state"], runner["grad_steps"])
         ready = buffer.size * seq_len >= cfg.learning_starts
 
         def train(carry):
+            sampled = buffer
             if per_update:      # targets of every buffered sequence, sampled alongside them
-                data = dict(buffer.data, target=buffer_targets(carry[1], buffer.data, moments))
-                carry = carry[:3] + (buffer.replace(data=data),) + carry[4:]
-            carry, losses = jax.lax.scan(functools.partial(learn, moments), carry,
+                target = carry[1]
+                sampled = buffer.replace(data=dict(buffer.data, target=buffer_targets(target, buffer.data, moments)))
+            carry, losses = jax.lax.scan(functools.partial(learn, moments, sampled), carry,
                                          jax.random.split(k_learn, cfg.train_steps))
-            return carry[:3] + (buffer,) + carry[4:], losses.mean()
+            return carry, losses.mean()
 
         carry, loss = jax.lax.cond(ready, train, lambda c: (c, jnp.float32(jnp.nan)), carry)
-        params, target, opt_state, buffer, grad_steps = carry
+        params, target, opt_state, grad_steps = carry
         runner = dict(params=params, target=target, opt_state=opt_state, buffer=buffer, key=runner["key"],
                       update=runner["update"] + 1, grad_steps=grad_steps, reward_moments=moments)
         return runner, dict(metrics, loss=loss, epsilon=eps)
