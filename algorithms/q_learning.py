@@ -9,7 +9,9 @@ module is everything else, as in EPyMARL:
   that ends early is followed by the next one in the same sequence). Agents act epsilon-greedily on
   :class:`~algorithms.networks.QAgent` Q-values (GRU, minimal GRU or feed-forward; one parameter set
   + agent-ID one-hot, or per-agent parameters). Epsilon falls linearly from ``eps_start`` to ``eps_finish``
-  over ``eps_decay_steps`` env steps.
+  over ``eps_decay_steps`` env steps; with ``eps_spread = a > 0`` env ``i`` of ``n`` explores with
+  ``epsilon ** (1 + a * i / (n - 1))`` instead (Ape-X's spread of exploration rates: env 0 at the
+  schedule, the others ever closer to greedy).
 * **Replay.** The sequences go into an :mod:`algorithms.buffer` episode buffer of ``buffer_size``
   sequences.
 * **Learning.** ``train_steps`` gradient steps per update, each on ``batch_size`` sampled
@@ -77,6 +79,7 @@ class QConfig:
     eps_start: float = 1.0
     eps_finish: float = 0.05
     eps_decay_steps: int = 50_000    # env steps
+    eps_spread: float = 0.0          # > 0: per-env epsilon ** (1 + eps_spread * i / (num_envs - 1))
     target_update_interval: int = 200  # gradient steps between hard target copies (tau = 1)
     tau: float = 1.0                 # < 1: Polyak averaging after every gradient step
     double_q: bool = True
@@ -111,6 +114,8 @@ class QConfig:
             raise ValueError(f"num_steps must be >= 0 (0 = episode length), got {self.num_steps}")
         if self.optimizer not in OPTIMIZERS:
             raise ValueError(f"optimizer must be one of {sorted(OPTIMIZERS)}, got {self.optimizer!r}")
+        if not 0.0 <= self.eps_spread <= 16.0:
+            raise ValueError(f"eps_spread must be in [0, 16] (0 = one epsilon for all envs), got {self.eps_spread}")
         if not 0.0 <= self.td_lambda <= 1.0:
             raise ValueError(f"td_lambda must be in [0, 1], got {self.td_lambda}")
         if not 0.0 < self.tau <= 1.0:
@@ -174,6 +179,16 @@ def lambda_returns(reward, done, next_value, gamma: float, lam: float):
         return g, g
 
     return jax.lax.scan(back, next_value[-1], (reward, live, next_value), reverse=True)[1]
+
+
+def env_epsilons(eps, num_envs: int, spread: float):
+    """Exploration rate of each of ``num_envs`` envs ``[num_envs]`` from the schedule's ``eps``:
+    ``eps ** (1 + spread * i / (num_envs - 1))`` (all ``eps`` for ``spread = 0``)."""
+    eps = jnp.asarray(eps, jnp.float32)
+    if spread == 0.0:
+        return jnp.broadcast_to(eps, (num_envs,))
+    position = jnp.arange(num_envs, dtype=jnp.float32) / max(num_envs - 1, 1)
+    return jnp.power(eps, 1.0 + spread * position)
 
 
 def sequence_length(env, cfg: QConfig) -> int:
@@ -254,7 +269,8 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
                     grad_steps=jnp.int32(0), reward_moments=(jnp.float32(0), jnp.float32(0), jnp.float32(0)))
 
     def collect(params, key, eps):
-        """``num_envs`` fresh sequences of ``seq_len`` steps, env-major, plus the rollout metrics."""
+        """``num_envs`` fresh sequences of ``seq_len`` steps, env-major, plus the rollout metrics
+        (``eps [num_envs]``: each env's exploration rate)."""
         k_reset, k_run = jax.random.split(key)
         obs, state = jax.vmap(env.reset)(jax.random.split(k_reset, cfg.num_envs))
 
@@ -262,7 +278,7 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
             obs, state, hidden, reset = carry
             k_explore, k_random, k_env = jax.random.split(key, 3)
             hidden, q = q_values(params["agent"], hidden, obs, agent_resets(reset))
-            explore = jax.random.uniform(k_explore, (cfg.num_envs, n_agents)) < eps
+            explore = jax.random.uniform(k_explore, (cfg.num_envs, n_agents)) < eps[:, None]
             random = jax.random.randint(k_random, (cfg.num_envs, n_agents), 0, env.num_actions)
             actions = jnp.where(explore, random, jnp.argmax(q, -1)).astype(jnp.int32)
             next_obs, state, rewards, done, info = jax.vmap(env.step)(
@@ -343,7 +359,7 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         k_collect, k_learn = jax.random.split(key)
         env_steps = runner["update"] * steps_per_update
         eps = epsilon(env_steps)
-        sequences, metrics = collect(runner["params"], k_collect, eps)
+        sequences, metrics = collect(runner["params"], k_collect, env_epsilons(eps, cfg.num_envs, cfg.eps_spread))
         buffer = episode_buffer.add(runner["buffer"], sequences)
         moments = update_moments(runner["reward_moments"], sequences["reward"])
         carry = (runner["params"], runner["target"], runner["opt_state"], runner["grad_steps"])
@@ -395,4 +411,4 @@ def greedy_policy(env, cfg: QConfig, params) -> StatefulPolicy:
                           step=step)
 
 
-__all__ = ["QConfig", "make_train", "greedy_policy", "sequence_length", "lambda_returns", "OPTIMIZERS"]
+__all__ = ["QConfig", "make_train", "greedy_policy", "sequence_length", "lambda_returns", "env_epsilons", "OPTIMIZERS"]

@@ -145,6 +145,36 @@ def test_targets_are_computed_once_per_update_only_where_that_is_exact_and_cheap
     assert not vdn.VDNConfig(**hp).targets_per_update
 
 
+def test_eps_spread_gives_each_env_its_own_exploration_rate():
+    """``eps_spread``: env ``i`` of ``n`` explores with ``eps ** (1 + a * i / (n - 1))`` -- checked on the
+    collected actions against the greedy actions of the (not yet trained) parameters."""
+    from algorithms.q_learning import env_epsilons, greedy_policy
+
+    np.testing.assert_array_equal(env_epsilons(0.05, 4, 0.0), np.full(4, 0.05, np.float32))
+    np.testing.assert_allclose(env_epsilons(0.05, 3, 2.0), [0.05, 0.05 ** 2, 0.05 ** 3], rtol=1e-5)
+    with pytest.raises(ValueError, match="eps_spread must be in"):
+        vdn.VDNConfig(eps_spread=-1.0).validate()
+    env = marbler_jax.make("predator_capture_prey", control_period=15)
+    cfg = vdn.VDNConfig(num_envs=4, buffer_size=4, batch_size=4, learning_starts=10**6, hidden=16, cell="mingru",
+                        eps_start=0.5, eps_finish=0.5, eps_spread=16.0)      # envs at 0.5, 0.5^6.3, 0.5^11.7, 0.5^17
+    trainer = vdn.make_train(env, cfg)
+    runner, _ = jax.jit(lambda key: trainer.run(trainer.init(key), 1))(jax.random.PRNGKey(3))
+    data = jax.tree_util.tree_map(np.asarray, runner["buffer"].data)
+    policy = greedy_policy(env, cfg, runner["params"])                      # learning never started
+    resets = np.concatenate([np.ones((4, 1), bool), data["done"][:, :-1]], 1)
+
+    def greedy_step(hidden, inputs):
+        obs, reset = inputs
+        actions, hidden = policy.step(None, obs, hidden, reset)
+        return hidden, actions
+
+    greedy = jax.lax.scan(greedy_step, policy.initial_carry((4,)),
+                          (np.swapaxes(data["obs"][:, :-1], 0, 1), resets.T))[1]
+    off_greedy = (np.swapaxes(np.asarray(greedy), 0, 1) != data["actions"]).mean((1, 2))
+    assert 0.25 < off_greedy[0] < 0.55, off_greedy          # epsilon 0.5, a random action is greedy 1 time in 5
+    assert off_greedy[1] < 0.1 and off_greedy[3] == 0.0, off_greedy
+
+
 def test_shared_and_per_agent_parameter_shapes():
     env = marbler_jax.make("material_transport")
     small = dict(total_timesteps=4 * 71, num_envs=4, buffer_size=8, batch_size=2, learning_starts=0, hidden=16)
