@@ -166,11 +166,11 @@ class QAgent(nn.Module):
             return hidden, self._mingru_head(hidden)
         return hidden, self._feed_forward_head(x)
 
-    def sequence(self, obs, reset):
-        """Q-values ``[T, ..., A]`` along sequences ``obs [T, ..., D]`` from a zero hidden state
-        (``reset [T, ..., 1]`` zeroes it before a step). Equal to stepping :meth:`__call__`; for
-        ``"mingru"`` and ``"none"``, whose whole sequence needs no per-step matmul (a GRU is stepped
-        by the caller's own scan)."""
+    def sequence(self, obs, reset, hidden=None):
+        """Q-values ``[T, ..., A]`` along sequences ``obs [T, ..., D]`` from the hidden state ``hidden
+        [..., H]`` (default zero; ``reset [T, ..., 1]`` zeroes it before a step). Equal to stepping
+        :meth:`__call__`; for ``"mingru"`` and ``"none"``, whose whole sequence needs no per-step
+        matmul (a GRU is stepped by the caller's own scan)."""
         if self.memory == "gru":
             raise ValueError("QAgent.sequence is for cell='mingru' or 'none'; step a GRU with __call__")
         x = self._input_layer(obs)
@@ -183,7 +183,8 @@ class QAgent(nn.Module):
             hidden = inputs[0] * hidden + inputs[1]
             return hidden, hidden
 
-        hidden = jax.lax.scan(step, jnp.zeros(keep.shape[1:], keep.dtype), (keep, write))[1]
+        start = jnp.zeros(keep.shape[1:], keep.dtype) if hidden is None else hidden
+        hidden = jax.lax.scan(step, start, (keep, write))[1]
         return self._mingru_head(hidden)
 
     def initial_hidden(self, batch_shape=()):

@@ -6,7 +6,12 @@ module is everything else, as in EPyMARL:
 
 * **Acting.** Each update resets ``num_envs`` envs and runs them for ``num_steps`` steps (default:
   the episode length, so every sequence starts at an episode start; envs auto-reset, and an episode
-  that ends early is followed by the next one in the same sequence). Agents act epsilon-greedily on
+  that ends early is followed by the next one in the same sequence). With ``persistent_envs`` the
+  envs are not reset between updates (PQN's way): each update's sequences continue where the last
+  update's stopped, so every phase of an episode is collected as often as it occurs (a fresh reset per
+  update collects the first steps of a second, truncated episode after every early end, and all
+  envs start in step), and each sequence stores the agents' hidden state at its first step, as the
+  collecting network had it (R2D2's stored state). Agents act epsilon-greedily on
   :class:`~algorithms.networks.QAgent` Q-values (GRU, minimal GRU or feed-forward; one parameter set
   + agent-ID one-hot, or per-agent parameters). Epsilon falls linearly from ``eps_start`` to ``eps_finish``
   over ``eps_decay_steps`` env steps; with ``eps_spread = a > 0`` env ``i`` of ``n`` explores with
@@ -15,8 +20,8 @@ module is everything else, as in EPyMARL:
 * **Replay.** The sequences go into an :mod:`algorithms.buffer` episode buffer of ``buffer_size``
   sequences.
 * **Learning.** ``train_steps`` gradient steps per update, each on ``batch_size`` sampled
-  sequences: the recurrent agents are unrolled from a zero hidden state (reset again after every
-  ``done``), ``Q_tot`` of the taken actions is regressed on
+  sequences: the recurrent agents are unrolled from the sequence's stored hidden state (zero at an
+  episode start; reset again after every ``done``), ``Q_tot`` of the taken actions is regressed on
   ``r + gamma * (1 - done) * Q_tot_target(next)`` (or its TD(lambda) return along the sequence,
   ``td_lambda > 0``, as pymarl2 does) with double-Q action selection (``double_q``),
   the team reward (the scenario's reported reward) and the target networks' mixer. Target networks
@@ -80,6 +85,7 @@ class QConfig:
     eps_finish: float = 0.05
     eps_decay_steps: int = 50_000    # env steps
     eps_spread: float = 0.0          # > 0: per-env epsilon ** (1 + eps_spread * i / (num_envs - 1))
+    persistent_envs: bool = False    # envs continue across updates (sequences may start mid-episode)
     target_update_interval: int = 200  # gradient steps between hard target copies (tau = 1)
     tau: float = 1.0                 # < 1: Polyak averaging after every gradient step
     double_q: bool = True
@@ -222,25 +228,29 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
     def agent_resets(resets):
         return jnp.broadcast_to(resets[..., None, None], resets.shape + (n_agents, 1))
 
-    def q_sequence(agent_params, obs, resets):
-        """Q-values ``[T, B, N, A]`` of one network along sequences ``obs [T, B, N, D]`` (``resets [T, B]``)."""
+    def q_sequence(agent_params, obs, resets, hidden=None):
+        """Q-values ``[T, B, N, A]`` of one network along sequences ``obs [T, B, N, D]`` (``resets [T, B]``)
+        from the hidden state ``hidden [B, N, H]`` (``None``: zero)."""
         reset = agent_resets(resets)
         if agent.memory != "gru":      # minimal-GRU and feed-forward agents take the whole sequence at once
-            return apply_agents(agent, agent_params, agent_inputs(cfg, obs), reset, shared=cfg.shared,
+            start = () if hidden is None or agent.memory == "none" else (hidden,)
+            return apply_agents(agent, agent_params, agent_inputs(cfg, obs), reset, *start, shared=cfg.shared,
                                 method=QAgent.sequence)
 
         def step(hidden, inputs):
             return q_values(agent_params, hidden, *inputs)
 
-        return jax.lax.scan(step, agent.initial_hidden(obs.shape[1:3]), (obs, reset))[1]
+        start = agent.initial_hidden(obs.shape[1:3]) if hidden is None else hidden
+        return jax.lax.scan(step, start, (obs, reset))[1]
 
-    def q_sequences(agent_params, target_params, obs, resets):
+    def q_sequences(agent_params, target_params, obs, resets, hidden=None):
         """Online and target Q-values, each ``[T, B, N, A]``. GRU agents: both networks advance in one
         scan (half the loop steps of two unrolls; each step's two small GRU matmuls run back to back)."""
         if agent.memory != "gru":
-            return tuple(q_sequence(p, obs, resets) for p in (agent_params, target_params))
+            return tuple(q_sequence(p, obs, resets, hidden) for p in (agent_params, target_params))
         reset = agent_resets(resets)
-        hidden = agent.initial_hidden(obs.shape[1:3])
+        if hidden is None:
+            hidden = agent.initial_hidden(obs.shape[1:3])
 
         def step(hiddens, inputs):
             h_online, q_online = q_values(agent_params, hiddens[0], *inputs)
@@ -264,15 +274,24 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         example = dict(obs=jnp.zeros((seq_len + 1,) + obs.shape, jnp.float32),
                        actions=jnp.zeros((seq_len, n_agents), jnp.int32),
                        reward=jnp.zeros((seq_len,), jnp.float32), done=jnp.zeros((seq_len,), bool))
-        return dict(params=params, target=params, opt_state=tx.init(params),
-                    buffer=episode_buffer.init(example, cfg.buffer_size), key=key, update=jnp.int32(0),
-                    grad_steps=jnp.int32(0), reward_moments=(jnp.float32(0), jnp.float32(0), jnp.float32(0)))
+        runner = dict(params=params, target=params, opt_state=tx.init(params), key=key, update=jnp.int32(0),
+                      grad_steps=jnp.int32(0), reward_moments=(jnp.float32(0), jnp.float32(0), jnp.float32(0)))
+        if cfg.persistent_envs:    # the envs the first update continues, and each sequence's stored start
+            example.update(hidden=hidden, first=jnp.zeros((), bool))
+            runner["envs"] = fresh_envs(jax.random.fold_in(k_reset, 1))
+        return dict(runner, buffer=episode_buffer.init(example, cfg.buffer_size))
 
-    def collect(params, key, eps):
-        """``num_envs`` fresh sequences of ``seq_len`` steps, env-major, plus the rollout metrics
-        (``eps [num_envs]``: each env's exploration rate)."""
+    def fresh_envs(key):
+        """``num_envs`` envs just reset: ``(obs, env state, agents' hidden state, reset flags)``."""
+        obs, state = jax.vmap(env.reset)(jax.random.split(key, cfg.num_envs))
+        return obs, state, agent.initial_hidden((cfg.num_envs, n_agents)), jnp.ones((cfg.num_envs,), bool)
+
+    def collect(params, key, eps, envs=None):
+        """``num_envs`` sequences of ``seq_len`` steps, env-major, the rollout metrics and the envs as
+        they were left (``eps [num_envs]``: each env's exploration rate). ``envs`` (see
+        :func:`fresh_envs`): continue those; ``None``: start from a fresh reset."""
         k_reset, k_run = jax.random.split(key)
-        obs, state = jax.vmap(env.reset)(jax.random.split(k_reset, cfg.num_envs))
+        start = fresh_envs(k_reset) if envs is None else envs
 
         def step(carry, key):
             obs, state, hidden, reset = carry
@@ -287,17 +306,23 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
                        done=done, info=episode_info(info))
             return (next_obs, state, hidden, done), out
 
-        start = (obs, state, agent.initial_hidden((cfg.num_envs, n_agents)), jnp.ones((cfg.num_envs,), bool))
-        (last_obs, _, _, _), traj = jax.lax.scan(step, start, jax.random.split(k_run, seq_len))
+        left, traj = jax.lax.scan(step, start, jax.random.split(k_run, seq_len))
         metrics = rollout_metrics(traj["done"], traj["info"])
-        sequences = dict(obs=jnp.concatenate([traj["obs"], last_obs[None]], 0), actions=traj["actions"],
+        sequences = dict(obs=jnp.concatenate([traj["obs"], left[0][None]], 0), actions=traj["actions"],
                          reward=traj["reward"], done=traj["done"])
-        return jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), sequences), metrics
+        sequences = jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), sequences)
+        if cfg.persistent_envs:    # hidden state (before the reset flag is applied) and flag at the start
+            sequences.update(hidden=start[2], first=start[3])
+        return sequences, metrics, left
 
     def time_major(batch):
+        """``(data, resets [T+1, B], state [T+1, B, S], hidden [B, N, H] or None)`` of env-major ``batch``."""
+        batch = dict(batch)
+        hidden, first = batch.pop("hidden", None), batch.pop("first", None)
         data = jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), batch)
-        resets = jnp.concatenate([jnp.ones_like(data["done"][:1]), data["done"]], 0)   # [T+1, B]
-        return data, resets, global_state(data["obs"])                                 # state [T+1, B, S]
+        first = jnp.ones_like(data["done"][:1]) if first is None else first[None]
+        resets = jnp.concatenate([first, data["done"]], 0)                              # [T+1, B]
+        return data, resets, global_state(data["obs"]), hidden                          # state [T+1, B, S]
 
     def targets(data, state, next_q, target_mixer, moments):
         """TD(lambda) targets ``[T, B]`` from the next steps' agent values ``next_q [T, B, N]``."""
@@ -309,8 +334,8 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         return jnp.take_along_axis(q, data["actions"][..., None], -1)[..., 0]
 
     def loss_fn(params, target, batch, moments):
-        data, resets, state = time_major(batch)
-        q, q_target = q_sequences(params["agent"], target["agent"], data["obs"], resets)   # [T+1, B, N, A]
+        data, resets, state, hidden = time_major(batch)
+        q, q_target = q_sequences(params["agent"], target["agent"], data["obs"], resets, hidden)   # [T+1, B, N, A]
         if cfg.double_q:
             best = jnp.argmax(jax.lax.stop_gradient(q[1:]), -1)
             next_q = jnp.take_along_axis(q_target[1:], best[..., None], -1)[..., 0]
@@ -322,15 +347,15 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
 
     def update_targets(target, sequences, moments):
         """Targets ``[B, T]`` of env-major ``sequences`` under the (fixed) target network (no double-Q)."""
-        data, resets, state = time_major(sequences)
-        next_q = q_sequence(target["agent"], data["obs"], resets)[1:].max(-1)    # unrolled from the start
+        data, resets, state, hidden = time_major(sequences)
+        next_q = q_sequence(target["agent"], data["obs"], resets, hidden)[1:].max(-1)   # from the start
         return jnp.swapaxes(targets(data, state, next_q, target["mixer"], moments), 0, 1)
 
     def cached_loss_fn(params, target, batch, moments):
         """``loss_fn`` with the targets precomputed (``batch["target"] [B, T]``): online network only."""
         del target, moments
-        data, resets, state = time_major(batch)
-        q = q_sequence(params["agent"], data["obs"][:-1], resets[:-1])                 # [T, B, N, A]
+        data, resets, state, hidden = time_major(batch)
+        q = q_sequence(params["agent"], data["obs"][:-1], resets[:-1], hidden)         # [T, B, N, A]
         q_tot = mixer.apply(params["mixer"], chosen_q(q, data), state[:-1])
         return jnp.mean((q_tot - data["target"]) ** 2)
 
@@ -359,7 +384,8 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         k_collect, k_learn = jax.random.split(key)
         env_steps = runner["update"] * steps_per_update
         eps = epsilon(env_steps)
-        sequences, metrics = collect(runner["params"], k_collect, env_epsilons(eps, cfg.num_envs, cfg.eps_spread))
+        sequences, metrics, envs = collect(runner["params"], k_collect, env_epsilons(eps, cfg.num_envs, cfg.eps_spread),
+                                           runner.get("envs"))
         buffer = episode_buffer.add(runner["buffer"], sequences)
         moments = update_moments(runner["reward_moments"], sequences["reward"])
         carry = (runner["params"], runner["target"], runner["opt_state"], runner["grad_steps"])
@@ -376,8 +402,10 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
 
         carry, loss = jax.lax.cond(ready, train, lambda c: (c, jnp.float32(jnp.nan)), carry)
         params, target, opt_state, grad_steps = carry
-        runner = dict(params=params, target=target, opt_state=opt_state, buffer=buffer, key=runner["key"],
+        runner = dict(runner, params=params, target=target, opt_state=opt_state, buffer=buffer,
                       update=runner["update"] + 1, grad_steps=grad_steps, reward_moments=moments)
+        if cfg.persistent_envs:
+            runner["envs"] = envs
         return runner, dict(metrics, loss=loss, epsilon=eps)
 
     def run(runner, num_updates: int):
