@@ -233,7 +233,7 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         from the hidden state ``hidden [B, N, H]`` (``None``: zero)."""
         reset = agent_resets(resets)
         if agent.memory != "gru":      # minimal-GRU and feed-forward agents take the whole sequence at once
-            start = () if hidden is None or agent.memory == "none" else (hidden,)
+            start = () if hidden is None else (hidden,)       # feed-forward agents ignore it
             return apply_agents(agent, agent_params, agent_inputs(cfg, obs), reset, *start, shared=cfg.shared,
                                 method=QAgent.sequence)
 
