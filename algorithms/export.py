@@ -33,7 +33,7 @@ def policy_tensors(algo: str, cfg, params) -> tuple[dict, dict]:
     agent = params["agent"]["params"]
     memory = QAgent(1, cfg.hidden, cfg.recurrent, cfg.cell).memory
     fields = dict(kind="q_agent", recurrent=memory != "none", cell=memory, layer_norm=bool(cfg.layer_norm),
-                  hidden=cfg.hidden, activation="relu", layers=[])
+                  last_action=bool(cfg.last_action), hidden=cfg.hidden, activation="relu", layers=[])
     return fields, _float32(flatten_params(agent, "."))
 
 

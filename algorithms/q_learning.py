@@ -13,7 +13,9 @@ module is everything else, as in EPyMARL:
   envs start in step), and each sequence stores the agents' hidden state at its first step, as the
   collecting network had it (R2D2's stored state). Agents act epsilon-greedily on
   :class:`~algorithms.networks.QAgent` Q-values (GRU, minimal GRU or feed-forward; one parameter set
-  + agent-ID one-hot, or per-agent parameters). Epsilon falls linearly from ``eps_start`` to ``eps_finish``
+  + agent-ID one-hot, or per-agent parameters). With ``last_action`` every agent also sees the
+  one-hot of its own previous action (EPyMARL's ``obs_last_action``; zeros at an episode's first
+  step), appended after the observation and before the agent ID. Epsilon falls linearly from ``eps_start`` to ``eps_finish``
   over ``eps_decay_steps`` env steps; with ``eps_spread = a > 0`` env ``i`` of ``n`` explores with
   ``epsilon ** (1 + a * i / (n - 1))`` instead (Ape-X's spread of exploration rates: env 0 at the
   schedule, the others ever closer to greedy).
@@ -97,6 +99,7 @@ class QConfig:
     layer_norm: bool = False         # LayerNorm before the agents' hidden ReLUs (PQN's stabiliser)
     shared: bool = True
     agent_ids: bool = True
+    last_action: bool = False        # the one-hot of each agent's previous action in its input
     learner_devices: int = 1         # > 1: each gradient step's batch split over this many devices
     cache_targets: bool = True       # targets once per update where that is exact and cheaper (see above)
 
@@ -132,6 +135,9 @@ class QConfig:
             raise ValueError(f"reward_norm must be one of {list(REWARD_NORMS)}, got {self.reward_norm!r}")
         if self.batch_size % self.learner_devices:
             raise ValueError(f"batch_size ({self.batch_size}) must be divisible by learner_devices ({self.learner_devices})")
+        if self.last_action and self.persistent_envs:
+            raise ValueError("last_action is not supported with persistent_envs (sequences would have to store "
+                             "each agent's action before their first step); turn one of them off")
         if self.num_envs > self.buffer_size:
             raise ValueError(f"num_envs ({self.num_envs}) must not exceed buffer_size ({self.buffer_size})")
 
@@ -205,8 +211,23 @@ def agent_module(env, cfg: QConfig) -> QAgent:
     return QAgent(env.num_actions, cfg.hidden, cfg.recurrent, cfg.cell, cfg.layer_norm)
 
 
-def agent_inputs(cfg: QConfig, obs):
+def agent_inputs(cfg: QConfig, obs, last=None):
+    """The agents' network inputs ``[..., N, D']`` from observations ``obs [..., N, D]``: with
+    ``cfg.last_action`` followed by ``last [..., N, A]``, the one-hot of each agent's previous action
+    (zeros at an episode start), then with shared parameters and ``cfg.agent_ids`` the agent-ID
+    one-hot (EPyMARL's order)."""
+    if cfg.last_action:
+        obs = jnp.concatenate([obs, last], -1)
     return with_agent_ids(obs) if cfg.agent_ids and cfg.shared else obs
+
+
+def previous_actions(actions, resets, num_actions: int):
+    """One-hot of every agent's previous action ``[T+1, B, N, A]`` at each step of time-major
+    sequences (``actions [T, B, N]`` taken at steps ``0..T-1``; ``resets [T+1, B]`` marks episode
+    starts, where it is zero; step 0 of a sequence has no previous action in it, so also zero)."""
+    taken = jax.nn.one_hot(actions, num_actions, dtype=jnp.float32)
+    last = jnp.concatenate([jnp.zeros_like(taken[:1]), taken], 0)
+    return jnp.where(resets[..., None, None], 0.0, last)
 
 
 def make_train(env, cfg: QConfig, mixer: nn.Module):
@@ -221,43 +242,49 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
     lr = optax.linear_schedule(cfg.lr, 0.0, total_grad_steps) if cfg.lr_decay else cfg.lr
     tx = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), OPTIMIZERS[cfg.optimizer](lr))
 
-    def q_values(agent_params, hidden, obs, reset):
-        """One step: ``hidden [..., N, H]``, ``obs [..., N, D]``, ``reset [..., N, 1]``."""
-        return apply_agents(agent, agent_params, hidden, agent_inputs(cfg, obs), reset, shared=cfg.shared)
+    def q_values(agent_params, hidden, inputs, reset):
+        """One step: ``hidden [..., N, H]``, ``inputs [..., N, D']`` (:func:`agent_inputs`), ``reset [..., N, 1]``."""
+        return apply_agents(agent, agent_params, hidden, inputs, reset, shared=cfg.shared)
+
+    def sequence_inputs(obs, actions, resets):
+        """Agent inputs ``[T', B, N, D']`` along time-major sequences (``obs [T', B, N, D]``, the
+        ``actions [T, B, N]`` taken, ``resets [T+1, B]``; ``T'`` = T or T + 1)."""
+        last = previous_actions(actions, resets, env.num_actions)[:obs.shape[0]] if cfg.last_action else None
+        return agent_inputs(cfg, obs, last)
 
     def agent_resets(resets):
         return jnp.broadcast_to(resets[..., None, None], resets.shape + (n_agents, 1))
 
-    def q_sequence(agent_params, obs, resets, hidden=None):
-        """Q-values ``[T, B, N, A]`` of one network along sequences ``obs [T, B, N, D]`` (``resets [T, B]``)
-        from the hidden state ``hidden [B, N, H]`` (``None``: zero)."""
+    def q_sequence(agent_params, inputs, resets, hidden=None):
+        """Q-values ``[T, B, N, A]`` of one network along sequences of agent inputs ``inputs [T, B, N, D']``
+        (``resets [T, B]``) from the hidden state ``hidden [B, N, H]`` (``None``: zero)."""
         reset = agent_resets(resets)
         if agent.memory != "gru":      # minimal-GRU and feed-forward agents take the whole sequence at once
             start = () if hidden is None else (hidden,)       # feed-forward agents ignore it
-            return apply_agents(agent, agent_params, agent_inputs(cfg, obs), reset, *start, shared=cfg.shared,
+            return apply_agents(agent, agent_params, inputs, reset, *start, shared=cfg.shared,
                                 method=QAgent.sequence)
 
         def step(hidden, inputs):
             return q_values(agent_params, hidden, *inputs)
 
-        start = agent.initial_hidden(obs.shape[1:3]) if hidden is None else hidden
-        return jax.lax.scan(step, start, (obs, reset))[1]
+        start = agent.initial_hidden(inputs.shape[1:3]) if hidden is None else hidden
+        return jax.lax.scan(step, start, (inputs, reset))[1]
 
-    def q_sequences(agent_params, target_params, obs, resets, hidden=None):
+    def q_sequences(agent_params, target_params, inputs, resets, hidden=None):
         """Online and target Q-values, each ``[T, B, N, A]``. GRU agents: both networks advance in one
         scan (half the loop steps of two unrolls; each step's two small GRU matmuls run back to back)."""
         if agent.memory != "gru":
-            return tuple(q_sequence(p, obs, resets, hidden) for p in (agent_params, target_params))
+            return tuple(q_sequence(p, inputs, resets, hidden) for p in (agent_params, target_params))
         reset = agent_resets(resets)
         if hidden is None:
-            hidden = agent.initial_hidden(obs.shape[1:3])
+            hidden = agent.initial_hidden(inputs.shape[1:3])
 
         def step(hiddens, inputs):
             h_online, q_online = q_values(agent_params, hiddens[0], *inputs)
             h_target, q_target = q_values(target_params, hiddens[1], *inputs)
             return (h_online, h_target), (q_online, q_target)
 
-        return jax.lax.scan(step, (hidden, hidden), (obs, reset))[1]
+        return jax.lax.scan(step, (hidden, hidden), (inputs, reset))[1]
 
     def epsilon(env_steps):
         frac = jnp.clip(env_steps / cfg.eps_decay_steps, 0.0, 1.0)
@@ -268,7 +295,8 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         key, k_agent, k_mixer, k_reset = jax.random.split(key, 4)
         obs, _ = env.reset(k_reset)
         hidden = agent.initial_hidden((n_agents,))
-        sample = (hidden[0], agent_inputs(cfg, obs)[0], jnp.zeros((1,), bool))
+        no_action = jnp.zeros((n_agents, env.num_actions), jnp.float32)
+        sample = (hidden[0], agent_inputs(cfg, obs, no_action)[0], jnp.zeros((1,), bool))
         params = dict(agent=init_agents(agent, k_agent, sample, n_agents, cfg.shared),
                       mixer=mixer.init(k_mixer, jnp.zeros((n_agents,)), global_state(obs)))
         example = dict(obs=jnp.zeros((seq_len + 1,) + obs.shape, jnp.float32),
@@ -292,11 +320,13 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         :func:`fresh_envs`): continue those; ``None``: start from a fresh reset."""
         k_reset, k_run = jax.random.split(key)
         start = fresh_envs(k_reset) if envs is None else envs
+        no_action = jnp.zeros((cfg.num_envs, n_agents, env.num_actions), jnp.float32)
 
         def step(carry, key):
-            obs, state, hidden, reset = carry
+            (obs, state, hidden, reset), last = carry
             k_explore, k_random, k_env = jax.random.split(key, 3)
-            hidden, q = q_values(params["agent"], hidden, obs, agent_resets(reset))
+            inputs = agent_inputs(cfg, obs, jnp.where(reset[:, None, None], 0.0, last))
+            hidden, q = q_values(params["agent"], hidden, inputs, agent_resets(reset))
             explore = jax.random.uniform(k_explore, (cfg.num_envs, n_agents)) < eps[:, None]
             random = jax.random.randint(k_random, (cfg.num_envs, n_agents), 0, env.num_actions)
             actions = jnp.where(explore, random, jnp.argmax(q, -1)).astype(jnp.int32)
@@ -304,9 +334,9 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
                 jax.random.split(k_env, cfg.num_envs), state, actions)
             out = dict(obs=obs, actions=actions, reward=jax.vmap(env.scenario.team_reward)(rewards),
                        done=done, info=episode_info(info))
-            return (next_obs, state, hidden, done), out
+            return ((next_obs, state, hidden, done), jax.nn.one_hot(actions, env.num_actions)), out
 
-        left, traj = jax.lax.scan(step, start, jax.random.split(k_run, seq_len))
+        (left, _), traj = jax.lax.scan(step, (start, no_action), jax.random.split(k_run, seq_len))
         metrics = rollout_metrics(traj["done"], traj["info"])
         sequences = dict(obs=jnp.concatenate([traj["obs"], left[0][None]], 0), actions=traj["actions"],
                          reward=traj["reward"], done=traj["done"])
@@ -335,7 +365,8 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
 
     def loss_fn(params, target, batch, moments):
         data, resets, state, hidden = time_major(batch)
-        q, q_target = q_sequences(params["agent"], target["agent"], data["obs"], resets, hidden)   # [T+1, B, N, A]
+        inputs = sequence_inputs(data["obs"], data["actions"], resets)
+        q, q_target = q_sequences(params["agent"], target["agent"], inputs, resets, hidden)   # [T+1, B, N, A]
         if cfg.double_q:
             best = jnp.argmax(jax.lax.stop_gradient(q[1:]), -1)
             next_q = jnp.take_along_axis(q_target[1:], best[..., None], -1)[..., 0]
@@ -348,14 +379,16 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
     def update_targets(target, sequences, moments):
         """Targets ``[B, T]`` of env-major ``sequences`` under the (fixed) target network (no double-Q)."""
         data, resets, state, hidden = time_major(sequences)
-        next_q = q_sequence(target["agent"], data["obs"], resets, hidden)[1:].max(-1)   # from the start
+        inputs = sequence_inputs(data["obs"], data["actions"], resets)
+        next_q = q_sequence(target["agent"], inputs, resets, hidden)[1:].max(-1)   # from the start
         return jnp.swapaxes(targets(data, state, next_q, target["mixer"], moments), 0, 1)
 
     def cached_loss_fn(params, target, batch, moments):
         """``loss_fn`` with the targets precomputed (``batch["target"] [B, T]``): online network only."""
         del target, moments
         data, resets, state, hidden = time_major(batch)
-        q = q_sequence(params["agent"], data["obs"][:-1], resets[:-1], hidden)         # [T, B, N, A]
+        inputs = sequence_inputs(data["obs"][:-1], data["actions"], resets)
+        q = q_sequence(params["agent"], inputs, resets[:-1], hidden)                   # [T, B, N, A]
         q_tot = mixer.apply(params["mixer"], chosen_q(q, data), state[:-1])
         return jnp.mean((q_tot - data["target"]) ** 2)
 
@@ -426,17 +459,30 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
 
 
 def greedy_policy(env, cfg: QConfig, params) -> StatefulPolicy:
-    """Greedy (argmax-Q) policy of trained ``params``; carries the agents' hidden state."""
+    """Greedy (argmax-Q) policy of trained ``params``. Its carry is the agents' memory ``[..., N, M]``:
+    the hidden state, followed with ``cfg.last_action`` by the one-hot of each agent's last action
+    (the layout of :class:`marbler_jax.numpy_policy.NumpyPolicy`'s memory)."""
     agent = agent_module(env, cfg)
+    width = agent.initial_hidden().shape[-1]
 
-    def step(key, obs, hidden, reset):
+    def step(key, obs, memory, reset):
         del key
         reset = jnp.broadcast_to(reset[..., None, None], obs.shape[:-1] + (1,))
-        hidden, q = apply_agents(agent, params["agent"], hidden, agent_inputs(cfg, obs), reset, shared=cfg.shared)
-        return jnp.argmax(q, -1).astype(jnp.int32), hidden
+        hidden, last = memory[..., :width], jnp.where(reset, 0.0, memory[..., width:])
+        hidden, q = apply_agents(agent, params["agent"], hidden, agent_inputs(cfg, obs, last), reset, shared=cfg.shared)
+        actions = jnp.argmax(q, -1).astype(jnp.int32)
+        if cfg.last_action:
+            hidden = jnp.concatenate([hidden, jax.nn.one_hot(actions, env.num_actions, dtype=hidden.dtype)], -1)
+        return actions, hidden
 
-    return StatefulPolicy(initial_carry=lambda batch_shape: agent.initial_hidden(tuple(batch_shape) + (env.num_agents,)),
-                          step=step)
+    def initial_carry(batch_shape):
+        memory = agent.initial_hidden(tuple(batch_shape) + (env.num_agents,))
+        if cfg.last_action:
+            memory = jnp.concatenate([memory, jnp.zeros(memory.shape[:-1] + (env.num_actions,), memory.dtype)], -1)
+        return memory
+
+    return StatefulPolicy(initial_carry=initial_carry, step=step)
 
 
-__all__ = ["QConfig", "make_train", "greedy_policy", "sequence_length", "lambda_returns", "env_epsilons", "OPTIMIZERS"]
+__all__ = ["QConfig", "make_train", "greedy_policy", "sequence_length", "lambda_returns", "env_epsilons",
+           "agent_inputs", "previous_actions", "OPTIMIZERS"]

@@ -6,7 +6,8 @@ server). A policy folder, written by ``marbler-jax export`` (:mod:`algorithms.ex
 * ``policy_spec.npy`` -- a 0-d unicode array holding JSON: ``format``, ``kind`` (``"q_agent"`` for
   VDN/QMIX/QMIX_NS, ``"actor"`` for IPPO/MAPPO), ``recurrent``, ``cell`` (``"gru"``, ``"mingru"``
   or ``"none"``; absent in older folders, where it is ``"gru"`` if ``recurrent``), ``shared``, ``agent_ids``,
-  ``layer_norm`` (Q-agents; absent in older folders, where it is false), ``num_agents``, ``obs_dim``,
+  ``layer_norm`` (Q-agents; absent in older folders, where it is false), ``last_action`` (Q-agents
+  that also see the one-hot of their previous action; absent in older folders: false), ``num_agents``, ``obs_dim``,
   ``num_actions``, ``hidden``, ``activation``, ``layers`` (actor MLP layer names in order) and
   ``tensors`` (parameter name -> file name).
 * one ``.npy`` per parameter tensor (``float32``; with a leading agent axis when not shared).
@@ -14,7 +15,9 @@ server). A policy folder, written by ``marbler-jax export`` (:mod:`algorithms.ex
 Everything loads with ``np.load(path, allow_pickle=False)``. Network equations (the same as the
 flax modules in ``algorithms/networks.py``):
 
-* ``q_agent``: ``x = relu(obs W_fc1 + b)`` (with ``layer_norm``, every ``relu(y)`` of a hidden
+* ``q_agent``: the input is the observation, then with ``last_action`` the one-hot of the agent's
+  previous action (zeros at the first step), then with ``shared`` and ``agent_ids`` the agent-ID
+  one-hot; ``x = relu(input W_fc1 + b)`` (with ``layer_norm``, every ``relu(y)`` of a hidden
   layer is ``relu(LN(y))``, ``LN(y) = (y - mean(y)) / sqrt(var(y) + 1e-6) * scale + bias`` over the
   last axis, parameters ``ln1`` after ``fc1`` and ``ln_out`` after ``fc_out`` / ``fc_hidden``); recurrent: flax ``GRUCell`` --
   ``r = s(x W_ir + b_ir + h W_hr)``, ``z = s(x W_iz + b_iz + h W_hz)``,
@@ -23,7 +26,9 @@ flax modules in ``algorithms/networks.py``):
   ``x = relu(h' W_fc_out + b)``; feed-forward: ``x = relu(x W_fc_hidden + b)``; ``q = x W_fc2 + b``.
 * ``actor``: ``Dense -> act -> ... -> Dense`` (logits).
 
-Greedy action = argmax over the last axis (first maximum on ties, as ``jnp.argmax``).
+Greedy action = argmax over the last axis (first maximum on ties, as ``jnp.argmax``). The memory a
+Q-agent carries from step to step is ``[N, M]``: its hidden state (width ``hidden``; 1 for
+feed-forward agents), followed with ``last_action`` by the one-hot of the action it took.
 """
 from __future__ import annotations
 
@@ -54,13 +59,23 @@ class NumpyPolicy:
         self.recurrent = bool(spec["kind"] == "q_agent" and spec["recurrent"])
         self.cell = spec.get("cell", "gru") if self.recurrent else "none"
         self.layer_norm = bool(spec.get("layer_norm", False))
+        self.last_action = bool(spec["kind"] == "q_agent" and spec.get("last_action", False))
+        self.num_actions = spec.get("num_actions")
+        if self.last_action and not isinstance(self.num_actions, int):
+            raise ValueError(f"a policy with last_action needs num_actions in its spec, got {self.num_actions!r}")
         if self.cell not in CELLS:
             raise ValueError(f"unsupported recurrent cell {self.cell!r} in the policy spec; "
                              f"expected one of {list(CELLS)}")
 
+    @property
+    def hidden_width(self) -> int:
+        """Width of the hidden state in the memory (1 for memoryless policies)."""
+        return int(self.spec["hidden"]) if self.recurrent else 1
+
     def initial_hidden(self) -> np.ndarray:
-        """Zero memory ``[N, H]`` (``[N, 1]`` for memoryless policies)."""
-        width = int(self.spec["hidden"]) if self.recurrent else 1
+        """Zero memory ``[N, M]``: ``M = H`` (1 for memoryless policies), plus the number of actions
+        with ``last_action`` (no previous action yet)."""
+        width = self.hidden_width + (self.num_actions if self.last_action else 0)
         return np.zeros((self.num_agents, width), np.float32)
 
     def _dense(self, name, x):
@@ -80,18 +95,28 @@ class NumpyPolicy:
             y = (y - mean) / np.sqrt(var + 1e-6) * self.t[f"{norm}.scale"] + self.t[f"{norm}.bias"]
         return np.maximum(y, 0)
 
-    def inputs(self, obs) -> np.ndarray:
+    def inputs(self, obs, last=None) -> np.ndarray:
+        """Network inputs of ``obs [..., N, D]`` (``last [..., N, A]``: the previous actions' one-hot,
+        used with ``last_action``)."""
         obs = np.asarray(obs, np.float32)
         if obs.shape[-2:] != (self.num_agents, self.obs_dim):
             raise ValueError(f"observations must be [..., {self.num_agents}, {self.obs_dim}], got {obs.shape}")
+        if self.last_action:
+            obs = np.concatenate([obs, np.broadcast_to(last, obs.shape[:-1] + (self.num_actions,))], axis=-1)
         if self.spec["agent_ids"] and self.spec["shared"]:
             ids = np.broadcast_to(np.eye(self.num_agents, dtype=np.float32), obs.shape[:-1] + (self.num_agents,))
             obs = np.concatenate([obs, ids], axis=-1)
         return obs
 
     def values(self, obs, hidden=None):
-        """``(Q-values or logits [..., N, A], new hidden [..., N, H])`` for ``obs [..., N, D]``."""
-        x = self.inputs(obs)
+        """``(Q-values or logits [..., N, A], new memory [..., N, M])`` for ``obs [..., N, D]`` and the
+        memory ``hidden`` (``None``: the initial one); with ``last_action`` the new memory holds the
+        greedy action's one-hot."""
+        last = None
+        if self.last_action:
+            memory = self.initial_hidden() if hidden is None else np.asarray(hidden, np.float32)
+            hidden, last = memory[..., :self.hidden_width], memory[..., self.hidden_width:]
+        x = self.inputs(obs, last)
         if self.spec["kind"] == "actor":
             act = {"tanh": np.tanh, "relu": lambda v: np.maximum(v, 0)}[self.spec["activation"]]
             layers = self.spec["layers"]
@@ -115,7 +140,11 @@ class NumpyPolicy:
             x = self._relu_layer("fc_out", "ln_out", hidden)
         else:
             x = self._relu_layer("fc_hidden", "ln_out", x)
-        return self._dense("fc2", x), hidden
+        values = self._dense("fc2", x)
+        if self.last_action:
+            greedy = np.eye(self.num_actions, dtype=np.float32)[np.argmax(values, axis=-1)]
+            hidden = np.concatenate([np.broadcast_to(hidden, greedy.shape[:-1] + hidden.shape[-1:]), greedy], -1)
+        return values, hidden
 
     def act(self, obs, hidden=None):
         """Greedy actions ``[..., N]`` (int32), the new hidden state and the values."""

@@ -9,6 +9,12 @@ time out with prey left -- split into prey that had been sensed (the blind captu
 through the predators) and prey never sensed. ``--eps`` replays the same initial states with that
 share of random actions, to see whether exploration noise breaks the failures (RESULTS.md).
 A prey sensed on the very last step counts as never sensed (the flags are read before that step).
+
+For the timeouts with a sensed prey left it also says where the blind capture robots were: the share
+of their steps that began with a capture robot within its capture radius of a sensed, uncaptured
+prey (where action 4 captures it: "in range"), the share of those in-range steps on which no capture
+robot in range chose action 4, and the mean distance of the closest capture robot to such a prey at
+the last step (m).
 """
 from __future__ import annotations
 
@@ -31,6 +37,7 @@ def make_play(env, policy, episodes: int):
     """Jitted ``(key, eps) -> dict`` of ``[episodes]`` arrays, each env's first episode: return, steps,
     violation, prey left, sensed-but-uncaptured prey (``eps``: share of uniformly random actions)."""
     policy = as_stateful(policy)
+    capture = env.scenario.radii(jnp, jnp.float32)[1]       # [N]; 0 for the sensing robots
 
     def play(key, eps):
         key_reset, key_run = jax.random.split(key)
@@ -43,15 +50,25 @@ def make_play(env, policy, episodes: int):
             noise = jax.random.randint(key_noise, actions.shape, 0, env.num_actions, actions.dtype)
             actions = jnp.where(jax.random.uniform(key_pick, actions.shape) < eps, noise, actions)
             flags = state.scenario.sensed & ~state.scenario.captured
+            dist = jnp.linalg.norm(state.poses[:, :, None, :2] - state.scenario.prey[:, None], axis=-1)   # [E, N, P]
+            near = jnp.where(flags[:, None, :] & (capture > 0)[None, :, None], dist, jnp.inf)
+            in_range = near <= capture[None, :, None]                                                   # [E, N, P]
+            pressed = jnp.any(jnp.any(in_range, -1) & (actions == 4), -1)
             obs, state, _, done, info = jax.vmap(env.step)(jax.random.split(key_step, episodes), state, actions)
             record = dict(sensed_left=jnp.sum(flags, -1), prey_left=info["prey_left"],
+                          in_range=jnp.any(in_range, (-1, -2)), pressed=pressed, nearest=near.min((-1, -2)),
                           ret=info["episode_return"], steps=info["steps"],
                           violation=info["episode_collided"] | info["episode_out_of_bounds"])
             return (obs, state, memory, done), (done, record)
 
         start = (obs, state, policy.initial_carry((episodes,)), jnp.ones((episodes,), bool))
         _, (done, trace) = jax.lax.scan(body, start, jax.random.split(key_run, env.max_steps))
-        return {k: at_first_done(done, v) for k, v in trace.items()}
+        live = (jnp.cumsum(done, 0) - done) == 0          # steps up to and including the first episode's end
+        ep = {k: at_first_done(done, v) for k, v in trace.items()}
+        ep["range_steps"] = jnp.sum(trace["in_range"] & live, 0)
+        ep["range_idle_steps"] = jnp.sum(trace["in_range"] & ~trace["pressed"] & live, 0)
+        ep["live_steps"] = jnp.sum(live, 0)
+        return ep
 
     jitted = jax.jit(play)
     return lambda key, eps=0.0: jax.tree_util.tree_map(np.asarray, jitted(key, jnp.float32(eps)))
@@ -65,7 +82,19 @@ def breakdown(ep: dict[str, np.ndarray]) -> dict[str, float]:
                 success_steps=float(ep["steps"][success].mean()) if success.any() else float("nan"),
                 violation=float(ep["violation"].mean()), timeout=float(timeout.mean()),
                 prey_left_per_timeout=float(ep["prey_left"][timeout].mean()) if timeout.any() else 0.0,
-                sensed_share_of_left=float(ep["sensed_left"][timeout].sum()) / left)
+                sensed_share_of_left=float(ep["sensed_left"][timeout].sum()) / left,
+                **_sensed_timeouts(ep, timeout & (ep["sensed_left"] > 0)))
+
+
+def _sensed_timeouts(ep, rows) -> dict[str, float]:
+    """Where the capture robots were in the timeouts that left a sensed prey (``rows``)."""
+    if not rows.any():
+        return dict(sensed_timeouts=0.0)
+    in_range = ep["range_steps"][rows].sum()
+    return dict(sensed_timeouts=float(rows.mean()),
+                in_range_step_share=float(in_range / ep["live_steps"][rows].sum()),
+                idle_share_of_in_range=float(ep["range_idle_steps"][rows].sum() / max(in_range, 1)),
+                last_nearest_m=float(np.mean(ep["nearest"][rows])))
 
 
 def main(argv=None) -> int:

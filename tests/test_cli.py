@@ -112,6 +112,10 @@ def test_train_vdn_then_evaluate_best_checkpoint(tmp_path, capsys):
     played = failures.make_play(env, policy, 6)(jax.random.PRNGKey(5))
     reference = greedy_episodes(env, policy, 6, jax.random.PRNGKey(5))
     np.testing.assert_allclose(played["ret"], reference["reward"], rtol=1e-6)
+    # where the capture robots were: counted over each first episode's own steps only
+    np.testing.assert_array_equal(played["live_steps"], played["steps"])
+    assert np.all(played["range_idle_steps"] <= played["range_steps"])
+    assert np.all(played["range_steps"] <= played["live_steps"])
     assert rows["eps=0"]["return_mean"] == pytest.approx(float(reference["reward"].mean()), rel=1e-5)
     # the recurrent greedy policy of the best checkpoint, two episodes side by side
     gif = tmp_path / "vdn.gif"

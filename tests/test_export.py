@@ -26,12 +26,16 @@ CASES = {
     "vdn-mingru-layernorm": (vdn, vdn.VDNConfig(hidden=32, cell="mingru", layer_norm=True)),
     "qmix_ns-gru-layernorm": (qmix, qmix.QMIXNSConfig(hidden=32, layer_norm=True)),
     "qmix-ff-layernorm": (qmix, qmix.QMIXConfig(hidden=32, recurrent=False, layer_norm=True)),
+    "vdn-gru-last-action": (vdn, vdn.VDNConfig(hidden=32, last_action=True)),
+    "qmix_ns-mingru-last-action": (qmix, qmix.QMIXNSConfig(hidden=32, cell="mingru", last_action=True)),
+    "qmix-ff-last-action": (qmix, qmix.QMIXConfig(hidden=32, recurrent=False, last_action=True)),
     "ippo-shared": (ippo, ippo.IPPOConfig(hidden=32)),
     "mappo-per-agent": (mappo, mappo.MAPPOConfig(hidden=32, shared=False, activation="relu")),
 }
 ALGO = {"vdn-gru-shared": "vdn", "qmix-ff-shared": "qmix", "qmix_ns-gru": "qmix_ns", "ippo-shared": "ippo",
         "mappo-per-agent": "mappo", "vdn-mingru-shared": "vdn", "qmix_ns-mingru": "qmix_ns",
-        "vdn-mingru-layernorm": "vdn", "qmix_ns-gru-layernorm": "qmix_ns", "qmix-ff-layernorm": "qmix"}
+        "vdn-mingru-layernorm": "vdn", "qmix_ns-gru-layernorm": "qmix_ns", "qmix-ff-layernorm": "qmix",
+        "vdn-gru-last-action": "vdn", "qmix_ns-mingru-last-action": "qmix_ns", "qmix-ff-last-action": "qmix"}
 
 
 def _params(module, cfg, env, seed=0):
@@ -64,18 +68,23 @@ def test_numpy_policy_matches_jax_on_random_observations(case, tmp_path):
     h_jax = agent.initial_hidden((64, env.num_agents))
     h_np = policy.initial_hidden()[None].repeat(64, 0)
     no_reset = jnp.zeros((64, env.num_agents, 1), bool)
-    for t in range(10):                                   # hidden state carried over 10 steps
-        h_jax, q_jax = apply_agents(agent, params["agent"], h_jax, agent_inputs(cfg, jnp.asarray(obs[t])), no_reset,
-                                    shared=cfg.shared)
+    last = jnp.zeros((64, env.num_agents, env.num_actions))   # no previous action at the first step
+    assert policy.initial_hidden().shape[-1] == h_jax.shape[-1] + (env.num_actions if cfg.last_action else 0)
+    for t in range(10):                                   # hidden state (and last action) carried over 10 steps
+        h_jax, q_jax = apply_agents(agent, params["agent"], h_jax, agent_inputs(cfg, jnp.asarray(obs[t]), last),
+                                    no_reset, shared=cfg.shared)
         actions, h_np, q_np = policy.act(obs[t], h_np)
         np.testing.assert_allclose(q_np, q_jax, atol=1e-5, rtol=1e-5)
-        np.testing.assert_allclose(h_np, h_jax, atol=1e-5, rtol=1e-5)
         np.testing.assert_array_equal(actions, np.argmax(np.asarray(q_jax), -1))
+        last = jax.nn.one_hot(jnp.argmax(q_jax, -1), env.num_actions)
+        memory = jnp.concatenate([h_jax, last], -1) if cfg.last_action else h_jax
+        np.testing.assert_allclose(h_np, memory, atol=1e-5, rtol=1e-5)
 
 
-def test_numpy_policy_replays_whole_episodes_like_the_jax_policy(tmp_path):
+@pytest.mark.parametrize("last_action", [False, True])
+def test_numpy_policy_replays_whole_episodes_like_the_jax_policy(tmp_path, last_action):
     env = marbler_jax.make("material_transport", control_period=15)
-    cfg = vdn.VDNConfig(hidden=32)
+    cfg = vdn.VDNConfig(hidden=32, last_action=last_action)
     params = _params(vdn, cfg, env, seed=3)
     export_params("vdn", cfg, params, env, tmp_path / "p")
     policy = load_policy(tmp_path / "p")
@@ -91,6 +100,7 @@ def test_numpy_policy_replays_whole_episodes_like_the_jax_policy(tmp_path):
             h_np = policy.initial_hidden()
         a_np, h_np, _ = policy.act(np.asarray(obs), h_np)
         np.testing.assert_array_equal(a_np, np.asarray(a_jax), err_msg=f"step {steps}")
+        np.testing.assert_allclose(h_np, h_jax, atol=1e-4)     # the same memory layout (rounding builds up)
         obs, state, _, done, _ = step(jax.random.PRNGKey(steps), state, a_jax)
         reset, steps = bool(done), steps + 1
         finished += int(reset)
@@ -123,3 +133,5 @@ def test_bad_policy_folders_are_reported(tmp_path):
     assert NumpyPolicy(q_agent, {}).cell == "gru"               # folders written before `cell` existed
     with pytest.raises(ValueError, match="unsupported recurrent cell 'lstm'"):
         NumpyPolicy(dict(q_agent, cell="lstm"), {})
+    with pytest.raises(ValueError, match="a policy with last_action needs num_actions"):
+        NumpyPolicy(dict(q_agent, last_action=True), {})

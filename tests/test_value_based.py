@@ -105,19 +105,19 @@ def test_lambda_returns_match_the_recursive_definition_and_stop_at_episode_ends(
         vdn.VDNConfig(td_lambda=1.5).validate()
 
 
-@pytest.mark.parametrize("module, config, cell, reward_norm, persistent", [
-    (vdn, vdn.VDNConfig, "mingru", "none", False),
-    (qmix, qmix.QMIXNSConfig, "gru", "standardise", False),
-    (qmix, qmix.QMIXNSConfig, "mingru", "none", True),     # sequences from stored hidden states
+@pytest.mark.parametrize("module, config, cell, reward_norm, persistent, last_action", [
+    (vdn, vdn.VDNConfig, "mingru", "none", False, True),   # previous actions in the inputs of both paths
+    (qmix, qmix.QMIXNSConfig, "gru", "standardise", False, False),
+    (qmix, qmix.QMIXNSConfig, "mingru", "none", True, False),     # sequences from stored hidden states
 ])
-def test_targets_once_per_update_match_targets_per_batch(module, config, cell, reward_norm, persistent):
+def test_targets_once_per_update_match_targets_per_batch(module, config, cell, reward_norm, persistent, last_action):
     """``cache_targets``: the TD(lambda) targets of every buffered sequence computed once per update give
     the same gradient steps as computing them for each sampled batch (the target network is fixed
     within the update)."""
     env = marbler_jax.make("predator_capture_prey", control_period=15)
     hp = dict(total_timesteps=10**6, num_envs=8, buffer_size=8, batch_size=4, train_steps=4, target_update_interval=4,
               td_lambda=0.65, double_q=False, learning_starts=0, hidden=16, cell=cell, lr=1e-3, reward_norm=reward_norm,
-              persistent_envs=persistent, num_steps=30 if persistent else 0)
+              persistent_envs=persistent, num_steps=30 if persistent else 0, last_action=last_action)
     out = {}
     for cache in (True, False):
         cfg = config(cache_targets=cache, **hp)
@@ -230,6 +230,62 @@ def test_persistent_envs_continue_across_updates_with_the_stored_hidden_state(mo
         np.testing.assert_allclose(q_seq, q_later, rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.parametrize("module, config, cell", [(vdn, vdn.VDNConfig, "mingru"), (qmix, qmix.QMIXNSConfig, "gru")])
+def test_last_action_inputs_agree_between_acting_learning_and_the_greedy_policy(module, config, cell):
+    """``last_action``: each agent's input holds the one-hot of its previous action. With epsilon 0 the
+    collected actions are exactly the greedy policy's (which feeds back its own last actions) replayed
+    along the buffer's episodes, and the learner's inputs (``previous_actions`` of the stored actions)
+    give Q-values whose argmax is again those actions."""
+    from algorithms.networks import QAgent, apply_agents
+    from algorithms.q_learning import agent_inputs, agent_module, greedy_policy, previous_actions
+
+    env = marbler_jax.make("predator_capture_prey", control_period=15)
+    cfg = config(num_envs=4, buffer_size=4, batch_size=4, learning_starts=10**6, hidden=16, cell=cell,
+                 eps_start=0.0, eps_finish=0.0, last_action=True)
+    trainer = module.make_train(env, cfg)
+
+    def collect(key):           # one update from perturbed initial parameters (more varied greedy actions)
+        runner = trainer.init(key)
+        leaves, tree = jax.tree_util.tree_flatten(runner["params"])
+        noise = [0.3 * jax.random.normal(k, x.shape) for x, k in zip(leaves, jax.random.split(key, len(leaves)))]
+        params = jax.tree_util.tree_unflatten(tree, [x + n for x, n in zip(leaves, noise)])
+        return trainer.run(dict(runner, params=params), 1)[0]
+
+    runner = jax.jit(collect)(jax.random.PRNGKey(7))
+    data = jax.tree_util.tree_map(np.asarray, runner["buffer"].data)
+    params = runner["params"]
+    obs = np.swapaxes(data["obs"][:, :-1], 0, 1)                        # [T, B, N, D]
+    resets = np.concatenate([np.ones((1, 4), bool), data["done"][:, :-1].T], 0)
+    assert data["done"].any(1).all(), "every env should finish an episode (the memory must reset)"
+
+    policy = greedy_policy(env, cfg, params)
+
+    def greedy_step(memory, inputs):
+        obs_t, reset_t = inputs
+        actions, memory = policy.step(None, obs_t, memory, reset_t)
+        return memory, actions
+
+    greedy = np.swapaxes(np.asarray(jax.lax.scan(greedy_step, policy.initial_carry((4,)), (obs, resets))[1]), 0, 1)
+    np.testing.assert_array_equal(greedy, data["actions"])
+    last = np.asarray(previous_actions(np.swapaxes(data["actions"], 0, 1), np.concatenate([resets, data["done"][:, -1:].T]),
+                                       env.num_actions))
+    last = last[:-1]                                                      # [T, B, N, A]: the inputs' steps
+    np.testing.assert_array_equal(last[1:][~resets[1:]].argmax(-1), np.swapaxes(data["actions"], 0, 1)[:-1][~resets[1:]])
+    assert not last[resets].any()                                         # no previous action at an episode start
+    agent = agent_module(env, cfg)
+    reset = np.broadcast_to(resets[..., None, None], resets.shape + (env.num_agents, 1))
+    inputs = agent_inputs(cfg, obs, last)
+    if cell == "mingru":
+        q = apply_agents(agent, params["agent"], inputs, reset, shared=cfg.shared, method=QAgent.sequence)
+    else:
+        def step(hidden, xs):
+            return apply_agents(agent, params["agent"], hidden, *xs, shared=cfg.shared)
+        q = jax.lax.scan(step, agent.initial_hidden((4, env.num_agents)), (inputs, reset))[1]
+    np.testing.assert_array_equal(np.swapaxes(np.asarray(q).argmax(-1), 0, 1), data["actions"])
+    with pytest.raises(ValueError, match="last_action is not supported with persistent_envs"):
+        config(last_action=True, persistent_envs=True).validate()
+
+
 def test_shared_and_per_agent_parameter_shapes():
     env = marbler_jax.make("material_transport")
     small = dict(total_timesteps=4 * 71, num_envs=4, buffer_size=8, batch_size=2, learning_starts=0, hidden=16)
@@ -240,6 +296,9 @@ def test_shared_and_per_agent_parameter_shapes():
     assert ns["agent"]["params"]["fc1"]["kernel"].shape == (env.num_agents, env.obs_dim, 16)
     assert ns["agent"]["params"]["gru"]["hr"]["kernel"].shape == (env.num_agents, 16, 16)
     assert shared["mixer"]["params"]["hyper_w1_0"]["kernel"].shape == (env.num_agents * env.obs_dim, 64)
+    # last_action: the previous action's one-hot between the observation and the agent ID
+    last = jax.jit(qmix.make_train(env, qmix.QMIXConfig(**small, last_action=True)).init)(jax.random.PRNGKey(0))["params"]
+    assert last["agent"]["params"]["fc1"]["kernel"].shape == (env.obs_dim + env.num_actions + env.num_agents, 16)
 
 
 def test_recurrent_greedy_policy_resets_its_memory_at_episode_starts():
