@@ -334,7 +334,8 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
                 jax.random.split(k_env, cfg.num_envs), state, actions)
             out = dict(obs=obs, actions=actions, reward=jax.vmap(env.scenario.team_reward)(rewards),
                        done=done, info=episode_info(info))
-            return ((next_obs, state, hidden, done), jax.nn.one_hot(actions, env.num_actions)), out
+            last = jax.nn.one_hot(actions, env.num_actions) if cfg.last_action else last    # off: stays zero
+            return ((next_obs, state, hidden, done), last), out
 
         (left, _), traj = jax.lax.scan(step, (start, no_action), jax.random.split(k_run, seq_len))
         metrics = rollout_metrics(traj["done"], traj["info"])
