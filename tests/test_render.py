@@ -8,7 +8,7 @@ import pytest
 
 import marbler_jax
 from marbler_jax.cli import main
-from marbler_jax.render import record_episodes, render_frame, render_grid_episode
+from marbler_jax.render import FrameDrawer, record_episodes, render_frame, render_grid_episode
 
 
 def test_recorded_episodes_freeze_when_done_and_tile_into_a_grid():
@@ -29,6 +29,24 @@ def test_recorded_episodes_freeze_when_done_and_tile_into_a_grid():
     assert first.std() > 20 and not np.array_equal(first, second)              # drawn, and different envs
     assert np.all(empty == 255)                                                # the unused cell stays blank
     assert not np.array_equal(frames[0], frames[-1])                           # robots moved
+
+
+@pytest.mark.parametrize("scenario", ["arctic_transport", "predator_capture_prey"])
+def test_a_reused_drawer_draws_each_state_like_a_fresh_figure(scenario):
+    """``FrameDrawer`` keeps one figure and its background: a frame carries nothing over from the one
+    before, and equals a fresh figure's (Arctic Transport: an image layer under the arena's outlines)."""
+    env = marbler_jax.make(scenario, max_episode_steps=4)
+    states, returns, _ = record_episodes(env, None, jax.random.PRNGKey(1), num_envs=1)
+    draw = FrameDrawer(env, dpi=50)
+    frames = []
+    for t in (0, 4, 0):
+        one = jax.tree_util.tree_map(lambda x: x[t, 0], states)
+        frame = draw(one, step=t, reward=float(returns[t, 0]))
+        np.testing.assert_array_equal(frame, render_frame(env, one, step=t, reward=float(returns[t, 0]), dpi=50))
+        frames.append(frame)
+    np.testing.assert_array_equal(frames[0], frames[2])
+    assert not np.array_equal(frames[0], frames[1])
+    assert len(draw._ax.get_children()) == len(FrameDrawer(env, dpi=50)._ax.get_children())   # nothing piles up
 
 
 def test_render_cli_writes_a_gif_of_a_scenario_grid(tmp_path, capsys):

@@ -45,9 +45,11 @@ class SingleEnv:
         return np.asarray(obs, dtype=np.float32), np.asarray(rewards, dtype=np.float32), terminated, truncated, info
 
     def render(self) -> np.ndarray:
-        from marbler_jax.render import render_frame
+        from marbler_jax.render import FrameDrawer
 
         if self.state is None:
             raise RuntimeError("call reset() before render()")
+        if getattr(self, "_drawer", None) is None:
+            self._drawer = FrameDrawer(self.core)        # one figure for all of this env's frames
         state = jax.device_get(self.state)
-        return render_frame(self.core, state, step=int(state.step), reward=float(state.episode_return))
+        return self._drawer(state, step=int(state.step), reward=float(state.episode_return))
