@@ -113,6 +113,8 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     without them. ``resume=True`` continues
     from the latest checkpoint bit-exactly (same final parameters as an uninterrupted run).
     ``on_chunk(update)`` is called after each chunk is saved (tests use it to simulate interruptions).
+    At the end ``evaluation.json`` holds the first seed's greedy policy and the random policy over
+    ``eval_episodes`` episodes each (``trained``/``random``; ``None`` with ``eval_episodes=0``).
     """
     import orbax.checkpoint as ocp
     from tqdm.auto import tqdm
@@ -127,6 +129,8 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     over_seeds = SEED_BATCHING[seed_batching]
     if test_episodes < 0:
         raise ValueError(f"test_episodes must be >= 0 (0 = no greedy test), got {test_episodes}")
+    if eval_episodes < 0:
+        raise ValueError(f"eval_episodes must be >= 0 (0 = no final evaluation), got {eval_episodes}")
     _, make_train, greedy = ALGORITHMS[algo]
     out = Path(out).absolute()
     out.mkdir(parents=True, exist_ok=True)
@@ -239,17 +243,20 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     seconds = time.perf_counter() - t_start
     params = runner["params"]
     save_params(out / "params.npz", params)
-    first = jax.tree_util.tree_map(lambda x: x[0], params)
-    key = jax.random.PRNGKey(12345)
-    trained = evaluate(env, greedy(env, cfg, first), eval_episodes, key)
-    random = evaluate(env, None, eval_episodes, key)
+    trained = random = None
+    if eval_episodes:
+        first = jax.tree_util.tree_map(lambda x: x[0], params)
+        key = jax.random.PRNGKey(12345)
+        trained = evaluate(env, greedy(env, cfg, first), eval_episodes, key)
+        random = evaluate(env, None, eval_episodes, key)
     result = dict(trained=trained, random=random, train_seconds=seconds,
                   env_steps_per_s=seeds * num_updates * steps_per_update / max(seconds, 1e-9), best_return=best,
                   best_by="greedy test return" if test_episodes else "training return")
     atomic_write(out / "evaluation.json", json.dumps(result, indent=2))
     log(f"trained in {seconds:.1f} s ({result['env_steps_per_s']:,.0f} env-steps/s including learning)")
-    log(f"greedy return {trained['return']:.2f} vs random {random['return']:.2f}; "
-        f"collisions {trained['collision_rate']:.1%}, out of bounds {trained['out_of_bounds_rate']:.1%}")
+    if eval_episodes:
+        log(f"greedy return {trained['return']:.2f} vs random {random['return']:.2f}; "
+            f"collisions {trained['collision_rate']:.1%}, out of bounds {trained['out_of_bounds_rate']:.1%}")
     return result
 
 

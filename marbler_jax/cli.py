@@ -179,7 +179,7 @@ def _train(args) -> int:
     train(args.scenario, args.algo, total, args.seeds, args.out, env_overrides=env_overrides, hp=hp,
           checkpoint_every=args.checkpoint_every, resume=args.resume, seed=args.seed, progress=not args.no_progress,
           seed_batching=args.seed_batching, hang_seconds=args.hang_seconds, test_episodes=args.test_episodes,
-          on_hang=lambda idle: _restart_resumed(args.argv, idle))
+          eval_episodes=args.eval_episodes, on_hang=lambda idle: _restart_resumed(args.argv, idle))
     print(f"run folder: {args.out}")
     return 0
 
@@ -349,6 +349,9 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--test-episodes", type=int, default=64,
                     help="greedy test episodes per seed after every chunk; the best checkpoint is the one with "
                          "the best test return (0 = no test: best by training return)")
+    tr.add_argument("--eval-episodes", type=int, default=256,
+                    help="episodes of the final evaluation.json (the first seed's greedy policy and the random "
+                         "policy; 0 = none)")
     tr.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
     tr.add_argument("--hang-seconds", type=float, default=120.0,

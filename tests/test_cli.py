@@ -58,7 +58,8 @@ def test_train_writes_a_complete_run_folder(tmp_path):
 
     out = tmp_path / "run"
     args = ["train", "--scenario", "warehouse", "--total-steps", "2048", "--seeds", "2", "--out", str(out),
-            "--hp", "num_envs=16", "--hp", "num_steps=16", "--hp", "hidden=32"]
+            "--hp", "num_envs=16", "--hp", "num_steps=16", "--hp", "hidden=32", "--test-episodes", "8",
+            "--eval-episodes", "16"]
     code = main(args + ["--seed", "7"])
     assert code == 0
     for name in ("config.json", "metrics.jsonl", "learning_curve.png", "params.npz", "evaluation.json"):
@@ -73,6 +74,7 @@ def test_train_writes_a_complete_run_folder(tmp_path):
     assert len(lines) == 2048 // (16 * 16)
     evaluation = json.loads((out / "evaluation.json").read_text())
     assert set(evaluation) >= {"trained", "random", "train_seconds"}
+    assert np.isfinite(evaluation["trained"]["return"]) and np.isfinite(evaluation["random"]["return"])
     assert main(["train", "--hp", "no_such=1", "--total-steps", "100", "--out", str(out)]) == 2
 
 
@@ -83,7 +85,7 @@ def test_train_vdn_then_evaluate_best_checkpoint(tmp_path, capsys):
     code = main(["train", "--scenario", "predator_capture_prey", "--algo", "vdn", "--total-steps", "1296",
                  "--seeds", "2", "--out", str(out), "--no-progress", "--hp", "num_envs=8", "--hp", "hidden=16",
                  "--hp", "learning_starts=0", "--hp", "buffer_size=32", "--hp", "batch_size=4",
-                 "--checkpoint-every", "1", "--test-episodes", "8"])
+                 "--checkpoint-every", "1", "--test-episodes", "8", "--eval-episodes", "8"])
     assert code == 0
     config = json.loads((out / "config.json").read_text())
     assert config["env"]["control_period"] == 15 and config["algorithm"]["train_steps"] == 32   # fast preset

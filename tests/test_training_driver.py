@@ -32,7 +32,7 @@ def test_chunked_run_matches_one_shot():
 
 
 def test_interrupted_run_resumes_bit_exactly(tmp_path):
-    common = dict(scenario="warehouse", algo="ippo", total_steps=STEPS, seeds=2, hp=HP, eval_episodes=8,
+    common = dict(scenario="warehouse", algo="ippo", total_steps=STEPS, seeds=2, hp=HP, eval_episodes=0,
                   checkpoint_every=1, progress=False, log=lambda *a: None, test_episodes=16)
     train(out=tmp_path / "full", **common)
 
@@ -91,10 +91,12 @@ def test_vmapped_seeds_match_mapped_seeds(tmp_path):
 def test_greedy_tests_do_not_change_training(tmp_path):
     """The per-chunk greedy test (``test_episodes``) draws no training randomness: same parameters with
     and without it; it reports the mean return of each seed's greedy episodes; bad counts are refused."""
-    common = dict(scenario="simple_navigation", algo="ippo", total_steps=STEPS, seeds=2, hp=HP, eval_episodes=8,
+    common = dict(scenario="simple_navigation", algo="ippo", total_steps=STEPS, seeds=2, hp=HP,
                   checkpoint_every=2, progress=False, log=lambda *a: None)
-    train(out=tmp_path / "test", test_episodes=8, **common)
-    train(out=tmp_path / "none", test_episodes=0, **common)
+    train(out=tmp_path / "test", test_episodes=8, eval_episodes=8, **common)
+    train(out=tmp_path / "none", test_episodes=0, eval_episodes=0, **common)
+    evaluations = [json.loads((tmp_path / run / "evaluation.json").read_text()) for run in ("test", "none")]
+    assert evaluations[0]["trained"]["episodes"] >= 8 and evaluations[1]["trained"] is None   # 0: no evaluation
     with_test, without = np.load(tmp_path / "test" / "params.npz"), np.load(tmp_path / "none" / "params.npz")
     for name in with_test:
         np.testing.assert_array_equal(with_test[name], without[name], err_msg=name)
@@ -119,3 +121,5 @@ def test_greedy_tests_do_not_change_training(tmp_path):
     assert per_seed[0] == pytest.approx(returns[first, np.arange(8)].mean(), rel=1e-5)
     with pytest.raises(ValueError, match="test_episodes must be >= 0"):
         train(out=tmp_path / "bad", test_episodes=-1, **common)
+    with pytest.raises(ValueError, match="eval_episodes must be >= 0"):
+        train(out=tmp_path / "bad", eval_episodes=-1, **common)
