@@ -20,8 +20,8 @@ temporal difference learning") does: many parallel episodes per update (256), no
 (the buffer holds exactly the update's own sequences), each sample used 4 times (16 gradient steps of
 64 sequences), TD(lambda = 0.65) targets from the network that collected the episodes (the target copy
 is refreshed once per update; max instead of double-Q), minimal-GRU agents and a learning rate decaying
-to 0 over 50M env steps (QMIX_NS: lambda 0.8, epsilon down to 0.01, each agent's previous action in its
-input, 45M steps). It spends 8x less
+to 0 over 50M env steps; VDN and QMIX_NS: each agent's previous action in its input (QMIX_NS also:
+lambda 0.8, epsilon down to 0.01, 45M steps). It spends 8x less
 gradient work per env step than ``fast`` and computes its targets once per update
 (``cache_targets``): VDN on PCP runs 71-82k env-steps/s (one or two learner devices) and reached 28-31
 in ~14 minutes, QMIX_NS 32.55-33.03 in 13-14 (three seeds; with ``last_action``, its preset now, 33.40 / 33.33 in
@@ -81,8 +81,10 @@ _PARALLEL_Q = dict(hidden=64, cell="mingru", num_envs=256, buffer_size=256, batc
 # 0.05 and lambda 0.65 or 0.8), so 45M steps (13-14 minutes) end at least where 50M did: 32.88 / 32.55
 # (500 episodes; seed 2: 33.03) against 32.54 / 32.59 (RESULTS.md). Each agent's previous action in its
 # input (last_action) learned far faster again on the same seed (greedy test 27.0 against 13.0 at 9M
-# steps, 32.7 against 29.3 at 22M) and ended at 33.40 against 32.34 (RESULTS.md).
-_PARALLEL_HP = {"vdn": _PARALLEL_Q, "qmix": dict(_PARALLEL_Q, lr=3e-4),
+# steps, 32.7 against 29.3 at 22M) and ended at 33.40 against 32.34 (RESULTS.md). VDN with last_action:
+# 31.81 / 31.43 (seeds 0 / 1, 500 episodes; greedy test 26.7 / 26.2 at 10M steps) against 31.44 / 28.40
+# without (20.1 / 19.5 at 10M), so VDN's preset has it too (2026-11-24).
+_PARALLEL_HP = {"vdn": dict(_PARALLEL_Q, last_action=True), "qmix": dict(_PARALLEL_Q, lr=3e-4),
                 "qmix_ns": dict(_PARALLEL_Q, td_lambda=0.8, eps_finish=0.01, last_action=True)}
 _PARALLEL_STEPS = {"qmix_ns": 45_000_000}
 

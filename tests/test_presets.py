@@ -52,6 +52,6 @@ def test_parallel_preset_trains_on_fresh_episodes_only(algo):
     assert cfg.train_steps * cfg.batch_size == 4 * cfg.num_envs
     assert cfg.target_update_interval == cfg.train_steps and cfg.tau == 1.0
     assert cfg.td_lambda > 0 and not cfg.double_q and cfg.lr_decay and cfg.cell == "mingru"
-    assert cfg.last_action == (algo == "qmix_ns")           # QMIX_NS's agents see their previous action
+    assert cfg.last_action == (algo != "qmix")        # VDN's and QMIX_NS's agents see their previous action
     assert preset("parallel", "simple_navigation", algo)[2] == 5_000_000
     assert preset("parallel", "predator_capture_prey", "mappo") == preset("fast", "predator_capture_prey", "mappo")
