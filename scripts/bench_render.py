@@ -21,6 +21,7 @@ import jax
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import marbler_jax  # noqa: E402
+from algorithms.driver import atomic_write  # noqa: E402
 from marbler_jax.render import record_episodes, render_grid_episode  # noqa: E402
 
 
@@ -54,13 +55,11 @@ def main(argv=None):
     result = dict(date=str(date.today()), machine=f"{platform.machine()}, {os.cpu_count()} CPU cores", rows=rows)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(".tmp")
-    tmp.write_text(json.dumps(result, indent=2))
-    tmp.replace(out)
+    atomic_write(out, json.dumps(result, indent=2))
     lines = [f"Machine: {result['machine']}; {result['date']}", "",
              "| scenario | envs | frames/s | ms per env tile |", "|---|---:|---:|---:|"]
     lines += [f"| {r['scenario']} | {r['envs']} | {r['frames_per_s']:.1f} | {r['ms_per_tile']:.0f} |" for r in rows]
-    out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    atomic_write(out.with_suffix(".md"), "\n".join(lines) + "\n")
     print("\n".join(lines))
     return result
 
