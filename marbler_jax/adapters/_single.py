@@ -16,6 +16,7 @@ class SingleEnv:
         self._step = jax.jit(self.core.step_env)
         self.state = None
         self.key = jax.random.PRNGKey(0)
+        self._drawer = None          # render(): one FrameDrawer (figure) for all of this env's frames, made on first use
 
     def seed(self, seed: int | None, rng: np.random.Generator) -> None:
         self.key = jax.random.PRNGKey(int(rng.integers(0, 2**31 - 1)) if seed is None else int(seed))
@@ -49,7 +50,7 @@ class SingleEnv:
 
         if self.state is None:
             raise RuntimeError("call reset() before render()")
-        if getattr(self, "_drawer", None) is None:
-            self._drawer = FrameDrawer(self.core)        # one figure for all of this env's frames
+        if self._drawer is None:
+            self._drawer = FrameDrawer(self.core)
         state = jax.device_get(self.state)
         return self._drawer(state, step=int(state.step), reward=float(state.episode_return))
