@@ -24,6 +24,7 @@ from tqdm.auto import tqdm
 
 import marbler_jax
 from algorithms import ippo, vdn
+from algorithms.driver import atomic_write
 from algorithms.export import export_params
 from marbler_jax.deploy.bundle import folder_size, write_bundle
 
@@ -71,8 +72,8 @@ def main() -> None:
             tqdm.write(json.dumps(rows[-1]))
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(dict(machine=platform.processor() or platform.machine(), cpus=os.cpu_count(),
-                                   rows=rows), indent=1))
+    atomic_write(out, json.dumps(dict(machine=platform.processor() or platform.machine(), cpus=os.cpu_count(),
+                                      rows=rows), indent=1))
     print("| scenario | policy | robots | files | bundle KiB | iterations | compute ms mean | p99 | max |")
     print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:

@@ -24,6 +24,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from algorithms.driver import atomic_write  # noqa: E402
 from marbler_jax import cbf, physics  # noqa: E402
 
 
@@ -188,11 +189,9 @@ def main(argv=None):
     )
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(".tmp")
-    tmp.write_text(json.dumps(result, indent=2))
-    tmp.replace(out)
+    atomic_write(out, json.dumps(result, indent=2))
     table = markdown(result)
-    out.with_suffix(".md").write_text(table + "\n")
+    atomic_write(out.with_suffix(".md"), table + "\n")
     print(table)
     return result
 

@@ -23,6 +23,7 @@ from tqdm.auto import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import marbler_jax  # noqa: E402
+from algorithms.driver import atomic_write  # noqa: E402
 from marbler_jax.rollout import make_rollout  # noqa: E402
 
 
@@ -79,9 +80,7 @@ def main(argv=None):
                   rows=rows, scaling=scaling)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(".tmp")
-    tmp.write_text(json.dumps(result, indent=2))
-    tmp.replace(out)
+    atomic_write(out, json.dumps(result, indent=2))
     lines = [f"Machine: {result['machine']}; jax {result['jax']}; {result['date']}", "",
              "| scenario | CBF | control period | batch | env-steps/s | agent-steps/s | compile s |",
              "|---|---|---:|---:|---:|---:|---:|"]
@@ -91,7 +90,7 @@ def main(argv=None):
     lines += ["", "| scaling (warehouse, safe CBF, period 15) | N | env-steps/s | ns per robot-tick |", "|---|---:|---:|---:|"]
     for s in scaling:
         lines.append(f"| batch {s['batch']} | {s['agents']} | {s['env_steps_per_s']:,.0f} | {s['ns_per_robot_tick']:.2f} |")
-    out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    atomic_write(out.with_suffix(".md"), "\n".join(lines) + "\n")
     print("\n".join(lines))
     return result
 

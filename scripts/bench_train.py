@@ -29,7 +29,7 @@ from tqdm.auto import tqdm
 
 import marbler_jax
 from algorithms.data_parallel import use_cpu_devices
-from algorithms.driver import ALGORITHMS, build_config, has_setting
+from algorithms.driver import ALGORITHMS, atomic_write, build_config, has_setting
 from algorithms.presets import preset
 from marbler_jax.cli import parse_overrides
 
@@ -91,7 +91,7 @@ def main() -> None:
     result = dict(machine=platform.processor() or platform.machine(), cpus=os.cpu_count(), devices=jax.device_count(),
                   backend=jax.default_backend(), jax=jax.__version__, rows=rows)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(result, indent=2))
+    atomic_write(Path(args.out), json.dumps(result, indent=2))
     print(f"\n{args.scenario}, {jax.default_backend()} backend" + (f", overrides {overrides}" if overrides else "") + "\n")
     print("| algorithm | preset | seeds | learner devices | env steps / update (all seeds) | env-steps/s incl. learning | compile s |")
     print("|---|---|---:|---:|---:|---:|---:|")
