@@ -1,19 +1,25 @@
 """Training throughput: env-steps/s *including learning* for each algorithm and preset.
 
-For every (algorithm, preset) it builds the trainer exactly as ``marbler-jax train`` does, compiles
-one chunk of ``--updates`` updates, runs it ``--repeats`` times from the same runner state and
-reports the best wall time (``block_until_ready``; compile time separately). Learning starts at
-update 0 (``learning_starts=0``) so that value-based runs pay for their gradient steps. Writes JSON
-and prints a Markdown table.
+For every (algorithm, preset) it builds the trainer exactly as ``marbler-jax train`` does and compiles
+one chunk of ``--updates`` updates; then it runs every configuration's chunk ``--repeats`` times from
+the same runner state, the configurations taking turns (round-robin, the order rotated each round), and
+reports the best and the median wall time (``block_until_ready``; compile time separately). Taking turns
+in one process matters on a shared VM: the same program timed in two processes can differ by far more
+than two programs timed alternately in one (BENCHMARKS.md). Learning starts at update 0
+(``learning_starts=0``) so that value-based runs pay for their gradient steps. Writes JSON and prints a
+Markdown table.
 
     python scripts/bench_train.py --out bench_out/train.json
     python scripts/bench_train.py --algos vdn --presets fast --scenario predator_capture_prey
     python scripts/bench_train.py --algos vdn qmix --presets fast --seeds 1 5   # seeds vmapped in one program
     python scripts/bench_train.py --algos vdn qmix --presets fast --learner-devices 1 2   # data-parallel steps
     python scripts/bench_train.py --algos vdn --presets fast --learner-devices 2 --hp cell=mingru   # preset + overrides
+    python scripts/bench_train.py --algos qmix_ns --presets parallel --learner-devices 2 --repeats 6 \
+        --variants last_action=true last_action=false        # an A/B of one setting, timed alternately
 
 ``--hp key=value`` (repeatable, as in ``marbler-jax train``) overrides a preset's hyperparameters for
-every algorithm that has the setting.
+every algorithm that has the setting. ``--variants`` adds one row per variant, each a comma-separated list
+of ``key=value`` overrides applied on top of ``--hp`` (``""`` for none).
 """
 from __future__ import annotations
 
@@ -21,6 +27,7 @@ import argparse
 import json
 import os
 import platform
+import statistics
 import time
 from pathlib import Path
 
@@ -34,8 +41,10 @@ from algorithms.presets import preset
 from marbler_jax.cli import parse_overrides
 
 
-def bench(scenario: str, algo: str, preset_name: str, updates: int, repeats: int, seeds: int = 1,
-          learner_devices: int = 1, overrides: dict | None = None) -> dict:
+def prepare(scenario: str, algo: str, preset_name: str, updates: int, seeds: int = 1,
+            learner_devices: int = 1, overrides: dict | None = None) -> dict:
+    """Builds and compiles one configuration's chunk of ``updates`` updates: its row (without timings)
+    and ``run() -> None``, which runs the chunk once from the same runner state and waits for it."""
     env_overrides, hp, _ = preset(preset_name, scenario, algo)
     hp.update({key: value for key, value in (overrides or {}).items() if has_setting(algo, key)})
     if has_setting(algo, "learning_starts"):
@@ -47,19 +56,44 @@ def bench(scenario: str, algo: str, preset_name: str, updates: int, repeats: int
     trainer = ALGORITHMS[algo][1](env, cfg)
     keys = jax.random.split(jax.random.PRNGKey(0), seeds)
     runner = jax.block_until_ready(jax.jit(jax.vmap(trainer.init))(keys))   # seeds vmapped, as the driver does
-    run = jax.jit(jax.vmap(lambda r: trainer.run(r, updates)))
+    chunk = jax.jit(jax.vmap(lambda r: trainer.run(r, updates)))
     t0 = time.perf_counter()
-    jax.block_until_ready(run(runner))
+    jax.block_until_ready(chunk(runner))
     compile_s = time.perf_counter() - t0
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(run(runner))
-        best = min(best, time.perf_counter() - t0)
-    steps = seeds * updates * trainer.steps_per_update
-    return dict(scenario=scenario, algo=algo, preset=preset_name, seeds=seeds, learner_devices=learner_devices,
-                env=env_overrides, hp=hp, updates=updates,
-                env_steps=steps, seconds=best, compile_seconds=compile_s, env_steps_per_s=steps / best)
+    row = dict(scenario=scenario, algo=algo, preset=preset_name, seeds=seeds, learner_devices=learner_devices,
+               env=env_overrides, hp=hp, updates=updates, env_steps=seeds * updates * trainer.steps_per_update,
+               compile_seconds=compile_s)
+    return dict(row=row, run=lambda: jax.block_until_ready(chunk(runner)))
+
+
+def time_in_turns(prepared: list[dict], repeats: int) -> list[dict]:
+    """Runs every prepared chunk ``repeats`` times, the configurations taking turns (the order rotated by
+    one each round); returns their rows with the best and median seconds and env-steps/s."""
+    times = [[] for _ in prepared]
+    for round_ in range(repeats):
+        for i in [(round_ + j) % len(prepared) for j in range(len(prepared))]:
+            t0 = time.perf_counter()
+            prepared[i]["run"]()
+            times[i].append(time.perf_counter() - t0)
+    rows = []
+    for item, seconds in zip(prepared, times):
+        best, median = min(seconds), statistics.median(seconds)
+        steps = item["row"]["env_steps"]
+        rows.append(dict(item["row"], seconds=best, median_seconds=median, all_seconds=seconds,
+                         env_steps_per_s=steps / best, median_env_steps_per_s=steps / median))
+    return rows
+
+
+def bench(scenario: str, algo: str, preset_name: str, updates: int, repeats: int, seeds: int = 1,
+          learner_devices: int = 1, overrides: dict | None = None) -> dict:
+    """One configuration alone: its row with the best of ``repeats`` timed chunks."""
+    prepared = prepare(scenario, algo, preset_name, updates, seeds, learner_devices, overrides)
+    return time_in_turns([prepared], repeats)[0]
+
+
+def parse_variant(text: str) -> dict:
+    """``"key=value,key=value"`` -> overrides (``""``: none)."""
+    return parse_overrides([pair for pair in text.split(",") if pair])
 
 
 def main() -> None:
@@ -74,30 +108,39 @@ def main() -> None:
                         help="value-based learners: devices each gradient step's batch is split over (CPU devices)")
     parser.add_argument("--hp", action="append", default=[], metavar="KEY=VALUE",
                         help="override a preset hyperparameter (repeatable), e.g. --hp cell=mingru")
+    parser.add_argument("--variants", nargs="+", default=[""], metavar="KEY=VALUE[,KEY=VALUE]",
+                        help="one row per variant: overrides on top of --hp, timed alternately with the others")
     parser.add_argument("--out", default="bench_out/train.json")
     args = parser.parse_args()
+    if args.repeats < 1:
+        parser.error(f"--repeats must be at least 1, got {args.repeats}")
     overrides = parse_overrides(args.hp)
-    for key in overrides:
+    variants = [parse_variant(text) for text in args.variants]
+    for key in set(overrides).union(*variants):
         if not any(has_setting(algo, key) for algo in args.algos):
-            parser.error(f"--hp {key}: not a setting of {args.algos}")
+            parser.error(f"--hp/--variants {key}: not a setting of {args.algos}")
     use_cpu_devices(max(args.learner_devices))
-    rows = []
-    combos = [(a, p, k, d) for a in args.algos for p in args.presets for k in args.seeds for d in args.learner_devices
-              if d == 1 or has_setting(a, "learner_devices")]
-    for algo, name, seeds, devices in tqdm(combos, desc="bench_train", unit="config"):
-        rows.append(bench(args.scenario, algo, name, args.updates, args.repeats, seeds, devices, overrides))
-        tqdm.write(f"{algo} {name} x{seeds} seeds, {devices} learner device(s): "
-                   f"{rows[-1]['env_steps_per_s']:,.0f} env-steps/s")
+    combos = [(a, p, k, d, v) for a in args.algos for p in args.presets for k in args.seeds
+              for d in args.learner_devices for v in args.variants if d == 1 or has_setting(a, "learner_devices")]
+    prepared = []
+    for algo, name, seeds, devices, variant in tqdm(combos, desc="compiling", unit="config"):
+        prepared.append(prepare(args.scenario, algo, name, args.updates, seeds, devices,
+                                dict(overrides, **parse_variant(variant))))
+        prepared[-1]["row"]["variant"] = variant
+    rows = time_in_turns(prepared, args.repeats)
     result = dict(machine=platform.processor() or platform.machine(), cpus=os.cpu_count(), devices=jax.device_count(),
-                  backend=jax.default_backend(), jax=jax.__version__, rows=rows)
+                  backend=jax.default_backend(), jax=jax.__version__, repeats=args.repeats, rows=rows)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     atomic_write(Path(args.out), json.dumps(result, indent=2))
-    print(f"\n{args.scenario}, {jax.default_backend()} backend" + (f", overrides {overrides}" if overrides else "") + "\n")
-    print("| algorithm | preset | seeds | learner devices | env steps / update (all seeds) | env-steps/s incl. learning | compile s |")
-    print("|---|---|---:|---:|---:|---:|---:|")
+    print(f"\n{args.scenario}, {jax.default_backend()} backend" + (f", overrides {overrides}" if overrides else "")
+          + f", best and median of {args.repeats} chunks per row, rows timed in turns\n")
+    print("| algorithm | preset | variant | seeds | learner devices | env steps / update (all seeds) "
+          "| env-steps/s incl. learning (best) | (median) | compile s |")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|")
     for r in rows:
-        print(f"| {r['algo']} | {r['preset']} | {r['seeds']} | {r['learner_devices']} | {r['env_steps'] // r['updates']:,} | "
-              f"{r['env_steps_per_s']:,.0f} | {r['compile_seconds']:.1f} |")
+        print(f"| {r['algo']} | {r['preset']} | {r['variant'] or '-'} | {r['seeds']} | {r['learner_devices']} | "
+              f"{r['env_steps'] // r['updates']:,} | {r['env_steps_per_s']:,.0f} | "
+              f"{r['median_env_steps_per_s']:,.0f} | {r['compile_seconds']:.1f} |")
     print(f"\nwritten: {args.out}")
 
 

@@ -1,0 +1,44 @@
+"""``scripts/bench_train.py`` times its configurations in turns (no JAX work here: fake chunks)."""
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "bench_train.py"
+
+
+@pytest.fixture(scope="module")
+def bench_train():
+    spec = importlib.util.spec_from_file_location("bench_train", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_configurations_take_turns_and_report_best_and_median(bench_train, monkeypatch):
+    now, calls = [0.0], []
+    monkeypatch.setattr(bench_train.time, "perf_counter", lambda: now[0])
+
+    def fake(name, steps, durations):
+        def run():
+            calls.append(name)
+            now[0] += durations[sum(c == name for c in calls) - 1]     # this call's duration
+        return dict(row=dict(name=name, env_steps=steps), run=run)
+
+    rows = bench_train.time_in_turns([fake("a", 10, [1, 4, 2]), fake("b", 20, [5, 5, 5]), fake("c", 30, [3, 1, 9])],
+                                     repeats=3)
+    # each round runs every configuration once, starting one further along each time
+    assert calls == ["a", "b", "c", "b", "c", "a", "c", "a", "b"]
+    assert [r["name"] for r in rows] == ["a", "b", "c"]
+    assert [r["all_seconds"] for r in rows] == [[1, 4, 2], [5, 5, 5], [3, 1, 9]]
+    assert [(r["seconds"], r["median_seconds"]) for r in rows] == [(1, 2), (5, 5), (1, 3)]
+    assert [(r["env_steps_per_s"], r["median_env_steps_per_s"]) for r in rows] == [(10, 5), (4, 4), (30, 10)]
+
+
+def test_variants_parse_into_overrides(bench_train):
+    assert bench_train.parse_variant("") == {}
+    assert bench_train.parse_variant("last_action=true,hidden=32") == {"last_action": True, "hidden": 32}
+    with pytest.raises(ValueError, match="key=value"):
+        bench_train.parse_variant("last_action")
