@@ -84,13 +84,6 @@ def time_in_turns(prepared: list[dict], repeats: int) -> list[dict]:
     return rows
 
 
-def bench(scenario: str, algo: str, preset_name: str, updates: int, repeats: int, seeds: int = 1,
-          learner_devices: int = 1, overrides: dict | None = None) -> dict:
-    """One configuration alone: its row with the best of ``repeats`` timed chunks."""
-    prepared = prepare(scenario, algo, preset_name, updates, seeds, learner_devices, overrides)
-    return time_in_turns([prepared], repeats)[0]
-
-
 def parse_variant(text: str) -> dict:
     """``"key=value,key=value"`` -> overrides (``""``: none)."""
     return parse_overrides([pair for pair in text.split(",") if pair])
