@@ -108,8 +108,8 @@ def main() -> None:
     if args.repeats < 1:
         parser.error(f"--repeats must be at least 1, got {args.repeats}")
     overrides = parse_overrides(args.hp)
-    variants = [parse_variant(text) for text in args.variants]
-    for key in set(overrides).union(*variants):
+    variants = {text: parse_variant(text) for text in args.variants}
+    for key in set(overrides).union(*variants.values()):
         if not any(has_setting(algo, key) for algo in args.algos):
             parser.error(f"--hp/--variants {key}: not a setting of {args.algos}")
     use_cpu_devices(max(args.learner_devices))
@@ -118,7 +118,7 @@ def main() -> None:
     prepared = []
     for algo, name, seeds, devices, variant in tqdm(combos, desc="compiling", unit="config"):
         prepared.append(prepare(args.scenario, algo, name, args.updates, seeds, devices,
-                                dict(overrides, **parse_variant(variant))))
+                                dict(overrides, **variants[variant])))
         prepared[-1]["row"]["variant"] = variant
     rows = time_in_turns(prepared, args.repeats)
     result = dict(machine=platform.processor() or platform.machine(), cpus=os.cpu_count(), devices=jax.device_count(),
