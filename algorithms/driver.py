@@ -15,6 +15,7 @@ import dataclasses
 import json
 import os
 import time
+import warnings
 from pathlib import Path
 
 import jax
@@ -105,12 +106,14 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     After every chunk the parameters are tested greedily (``test_episodes`` episodes per seed, the
     same initial states at every test so that checkpoints are compared on equal terms; MARBLER and
     EPyMARL keep the model with the best greedy test return) and the runner state (parameters,
-    optimiser, envs, keys) is saved with orbax (``checkpoints/``, the last ``keep``; ``best/`` holds
-    the parameters with the best test return, mean over seeds; with ``test_episodes=0`` the best
-    mean training return of a chunk's updates, which are epsilon-greedy or sampled), then
-    ``metrics.jsonl`` (the test return on each chunk's last line) and the learning curve are
-    rewritten atomically. The tests draw no training randomness: a run trains the same with or
-    without them. ``resume=True`` continues
+    optimiser, envs, keys) is saved with orbax (``checkpoints/``, the last ``keep``; ``best/`` holds,
+    for each seed, the parameters of that seed's best test return -- each seed is an independent run,
+    as each of the paper's five EPyMARL runs kept its own best model; with ``test_episodes=0`` the best
+    mean training return of a chunk's updates, which are epsilon-greedy or sampled). ``metrics.jsonl``
+    (the test return, mean/std and per seed, on each chunk's last line) and the learning curve are
+    rewritten atomically before the runner checkpoint, which commits the chunk: a run killed in
+    between repeats that chunk on resume and loses no metrics line. The tests draw no training
+    randomness: a run trains the same with or without them. ``resume=True`` continues
     from the latest checkpoint bit-exactly (same final parameters as an uninterrupted run).
     ``on_chunk(update)`` is called after each chunk is saved (tests use it to simulate interruptions).
     At the end ``evaluation.json`` holds the first seed's greedy policy and the random policy over
@@ -167,9 +170,10 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
             lines = [line for line in (out / "metrics.jsonl").read_text().splitlines()
                      if line.strip() and json.loads(line)["update"] <= done]
         log(f"resuming from update {done} of {num_updates}")
-    score_name = "test_return_mean" if test_episodes else "return_mean"
-    best = max((json.loads(line)[score_name] for line in lines
-                if json.loads(line).get(score_name) is not None), default=-np.inf)
+    best_scores = seed_best_scores(lines, seeds, tested=bool(test_episodes))
+    best_params = None
+    if resume and best_manager.latest_step() is not None:
+        best_params = jax.tree_util.tree_map(np.asarray, best_manager.restore(best_manager.latest_step()))
     tester = make_tester(env, lambda p: greedy(env, cfg, p), test_episodes, over_seeds) if test_episodes else None
     test_keys = jax.random.split(jax.random.PRNGKey(seed + 7919), seeds)   # apart from the training keys
     chunk = checkpoint_every or max(1, num_updates // 10)
@@ -206,31 +210,43 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
                 collision_rate=_nan_stat(np.nanmean, metrics["collision_rate"][:, i]),
                 out_of_bounds_rate=_nan_stat(np.nanmean, metrics["out_of_bounds_rate"][:, i]),
                 sps=seeds * n * steps_per_update / chunk_s)))
-        if tester:     # the parameters at the chunk's end, i.e. after its last update
-            last = json.loads(lines[-1])
-            lines[-1] = json.dumps(dict(last, test_return_mean=test_mean, test_return_std=_nan_stat(np.nanstd, test)))
+        with warnings.catch_warnings():           # a seed that finished no episode in the chunk: NaN
+            warnings.simplefilter("ignore", RuntimeWarning)
+            chunk_returns = np.nanmean(metrics["return"], axis=1)
+        # the parameters at the chunk's end (after its last update) are scored: greedy test, else training return
+        scores = test if tester else chunk_returns
+        last = json.loads(lines[-1])
+        if tester:
+            last.update(test_return_mean=test_mean, test_return_std=_nan_stat(np.nanstd, test),
+                        test_returns=_json_floats(test))
+        else:
+            last.update(chunk_returns=_json_floats(chunk_returns))
+        lines[-1] = json.dumps(last)
         if board is not None:
             for line in lines[-n:]:
                 row = json.loads(line)
                 for name, value in row.items():
-                    if name not in ("update", "env_steps") and value is not None:
+                    if name not in ("update", "env_steps") and isinstance(value, (int, float)):  # no lists
                         board.add_scalar(f"train/{name}", value, row["env_steps"])
             board.flush()
         done += n
         # saved as host arrays: no device layout in the checkpoint, so a run trained on several devices
         # (learner_devices) restores anywhere (evaluate, export, resume)
         host = jax.tree_util.tree_map(np.asarray, runner)
-        manager.save(done, args=ocp.args.StandardSave(host))
-        manager.wait_until_finished()
-        recent = [json.loads(line)["return_mean"] for line in lines[-n:]]
-        recent = [r for r in recent if r is not None]
-        score = test_mean if tester else (float(np.mean(recent)) if recent else None)
-        if score is not None and score > best:
-            best = score
-            best_manager.save(done, args=ocp.args.StandardSave(host["params"]), force=True)
+        improved = np.asarray(scores) > best_scores            # NaN never improves
+        if improved.any():
+            best_scores = np.where(improved, scores, best_scores)
+            best_params = keep_improved(improved, host["params"], best_params)
+            if done in best_manager.all_steps():              # written before a kill, now written again
+                best_manager.delete(done)
+            best_manager.save(done, args=ocp.args.StandardSave(best_params), force=True)
             best_manager.wait_until_finished()
         atomic_write(out / "metrics.jsonl", "\n".join(lines) + "\n")
         plot_learning_curve(out / "metrics.jsonl", out / "learning_curve.png", f"{algo} on {scenario}")
+        manager.save(done, args=ocp.args.StandardSave(host))  # last: the checkpoint commits the chunk
+        manager.wait_until_finished()
+        recent = [json.loads(line)["return_mean"] for line in lines[-n:]]
+        recent = [r for r in recent if r is not None]
         bar.update(n)
         bar.set_postfix(ret=f"{recent[-1]:.2f}" if recent else "n/a",
                         **({"test": f"{test_mean:.2f}"} if test_mean is not None else {}),
@@ -250,7 +266,8 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         trained = evaluate(env, greedy(env, cfg, first), eval_episodes, key)
         random = evaluate(env, None, eval_episodes, key)
     result = dict(trained=trained, random=random, train_seconds=seconds,
-                  env_steps_per_s=seeds * num_updates * steps_per_update / max(seconds, 1e-9), best_return=best,
+                  env_steps_per_s=seeds * num_updates * steps_per_update / max(seconds, 1e-9),
+                  best_return=_nan_stat(np.mean, best_scores), best_return_per_seed=_json_floats(best_scores),
                   best_by="greedy test return" if test_episodes else "training return")
     atomic_write(out / "evaluation.json", json.dumps(result, indent=2))
     log(f"trained in {seconds:.1f} s ({result['env_steps_per_s']:,.0f} env-steps/s including learning)")
@@ -258,6 +275,38 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         log(f"greedy return {trained['return']:.2f} vs random {random['return']:.2f}; "
             f"collisions {trained['collision_rate']:.1%}, out of bounds {trained['out_of_bounds_rate']:.1%}")
     return result
+
+
+def _json_floats(values) -> list:
+    """Floats for JSON (NaN -> None)."""
+    return [float(v) if np.isfinite(v) else None for v in np.asarray(values, dtype=float)]
+
+
+def seed_best_scores(lines: list[str], seeds: int, tested: bool) -> np.ndarray:
+    """Each seed's best chunk score ``[seeds]`` in ``metrics.jsonl`` lines (``-inf`` before any): the
+    greedy test returns (``test_returns``) or, for runs without tests, the chunks' mean training
+    returns (``chunk_returns``). Lines written before per-seed scores were logged count their mean
+    over seeds for every seed."""
+    best = np.full(seeds, -np.inf)
+    for line in lines:
+        row = json.loads(line)
+        per_seed = row.get("test_returns" if tested else "chunk_returns")
+        if per_seed is None:
+            mean = row.get("test_return_mean") if tested else None
+            if mean is None:
+                continue
+            per_seed = [mean] * seeds
+        best = np.fmax(best, np.array([np.nan if v is None else v for v in per_seed], dtype=float))
+    return best
+
+
+def keep_improved(improved: np.ndarray, params, best_params):
+    """Seed-major ``params`` where ``improved [S]``, else ``best_params`` (``None``: nothing kept yet)."""
+    if best_params is None:
+        return params
+    def pick(new, old):
+        return np.where(improved.reshape((-1,) + (1,) * (np.ndim(new) - 1)), new, old)
+    return jax.tree_util.tree_map(pick, params, best_params)
 
 
 def flatten_params(params, sep: str = "/") -> dict[str, np.ndarray]:

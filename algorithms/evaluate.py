@@ -7,6 +7,11 @@ and standard deviation of: Reward (team episode return), Steps (episode length, 
 when the episode ended by a violation, as the paper does), Prey Left (PCP) / Material Left (MT),
 and the percentage of episodes with a collision / a boundary violation. The paper's simulated
 numbers are listed beside ours where the paper has them (``PAPER``).
+
+The paper's Table II is not a mean over seeds: it trained five seeds per algorithm, "took the model
+that achieved the highest reward" and ran that one model for 100 episodes. ``seed_selection="best"``
+(``marbler-jax evaluate RUN --best-seed``) does the same with a multi-seed run: only the seed whose
+best greedy test return was highest, from its best checkpoint (``best/`` keeps each seed's own).
 """
 from __future__ import annotations
 
@@ -99,9 +104,37 @@ def restore_params(run: Path, checkpoint: str = "best"):
         raise ValueError(f"cannot restore the best checkpoint in {best}: {err}") from err
 
 
-def evaluate_run(run, episodes: int = 100, checkpoint: str = "best", seed: int = 0, progress: bool = False) -> dict:
-    """Table II metrics of every seed of run folder ``run`` and pooled over seeds."""
+def best_seed(run) -> tuple[int, float]:
+    """``(index, score)`` of the run's seed with the highest best greedy test return (best training
+    return for runs trained with ``test_episodes=0``), read from ``metrics.jsonl``: the model MARBLER's
+    Table II reports ("we took the model that achieved the highest reward for each algorithm", of five
+    seeds, and ran it for 100 episodes)."""
+    from algorithms.driver import seed_best_scores
+
+    run = Path(run)
+    config = json.loads((run / "config.json").read_text())
+    metrics = run / "metrics.jsonl"
+    lines = [line for line in metrics.read_text().splitlines() if line.strip()] if metrics.exists() else []
+    tested = bool(config.get("test_episodes", 0))
+    per_seed_key = "test_returns" if tested else "chunk_returns"
+    if config["seeds"] > 1 and not any(per_seed_key in json.loads(line) for line in lines):
+        raise ValueError(f"{run} logs no per-seed scores ({per_seed_key!r} in metrics.jsonl: runs trained "
+                         "before 2026-11-24 lack them); evaluate all seeds instead")
+    scores = seed_best_scores(lines, config["seeds"], tested)
+    if not np.isfinite(scores).any():
+        raise ValueError(f"{run} has no scored chunk yet (metrics.jsonl); train first")
+    index = int(np.nanargmax(np.where(np.isfinite(scores), scores, np.nan)))
+    return index, float(scores[index])
+
+
+def evaluate_run(run, episodes: int = 100, checkpoint: str = "best", seed: int = 0, progress: bool = False,
+                 seed_selection: str = "all") -> dict:
+    """Table II metrics of every seed of run folder ``run`` and pooled over seeds, or with
+    ``seed_selection="best"`` of the one seed :func:`best_seed` picks (the paper's protocol)."""
     from algorithms.driver import ALGORITHMS
+
+    if seed_selection not in ("all", "best"):
+        raise ValueError(f"seed_selection must be 'all' or 'best', got {seed_selection!r}")
 
     run = Path(run)
     if not (run / "config.json").exists():
@@ -115,7 +148,7 @@ def evaluate_run(run, episodes: int = 100, checkpoint: str = "best", seed: int =
     params = restore_params(run, checkpoint)
     n_seeds = jax.tree_util.tree_leaves(params)[0].shape[0]
     per_seed, pooled = [], {}
-    seeds = range(n_seeds)
+    seeds = [best_seed(run)[0]] if seed_selection == "best" else list(range(n_seeds))
     if progress:
         from tqdm.auto import tqdm
 
@@ -128,14 +161,19 @@ def evaluate_run(run, episodes: int = 100, checkpoint: str = "best", seed: int =
             pooled.setdefault(k, []).append(v)
     pooled_summary = summarize({k: np.concatenate(v) for k, v in pooled.items()})
     return dict(scenario=config["scenario"], algo=config["algo"], checkpoint=checkpoint, episodes_per_seed=episodes,
-                seeds=n_seeds, pooled=pooled_summary, per_seed=per_seed,
+                seeds=n_seeds, seed_selection=seed_selection, seed_indices=list(seeds), pooled=pooled_summary,
+                per_seed=per_seed,
                 paper=PAPER.get(config["scenario"], {}).get(config["algo"]))
 
 
 def markdown_table(result: dict) -> str:
     """The evaluation as a Markdown table (ours vs the paper's simulated numbers)."""
     paper = result.get("paper") or {}
-    lines = [f"### {result['algo']} on {result['scenario']} ({result['seeds']} seed(s) x "
+    if result.get("seed_selection") == "best":
+        seeds = f"seed {result['seed_indices'][0]}, the best of {result['seeds']} by greedy test return"
+    else:
+        seeds = f"{result['seeds']} seed(s)"
+    lines = [f"### {result['algo']} on {result['scenario']} ({seeds} x "
              f"{result['episodes_per_seed']} episodes, {result['checkpoint']} checkpoint)", "",
              "| metric | marbler-jax | MARBLER paper (sim) |", "|---|---|---|"]
     extra = [k for k in result["pooled"] if k not in METRICS]            # e.g. deliveries, landmarks_left
@@ -150,4 +188,4 @@ def markdown_table(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["evaluate_run", "markdown_table", "greedy_episodes", "first_episodes", "restore_params", "PAPER"]
+__all__ = ["evaluate_run", "best_seed", "markdown_table", "greedy_episodes", "first_episodes", "restore_params", "PAPER"]

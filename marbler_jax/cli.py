@@ -221,13 +221,15 @@ def _evaluate(args) -> int:
     from algorithms.driver import atomic_write
     from algorithms.evaluate import evaluate_run, markdown_table
 
-    result = evaluate_run(args.run, args.episodes, args.checkpoint, seed=args.seed, progress=not args.no_progress)
+    result = evaluate_run(args.run, args.episodes, args.checkpoint, seed=args.seed, progress=not args.no_progress,
+                          seed_selection="best" if args.best_seed else "all")
     table = markdown_table(result)
     run = Path(args.run)
-    atomic_write(run / f"eval_{args.checkpoint}.json", json.dumps(result, indent=2))
-    atomic_write(run / f"eval_{args.checkpoint}.md", table)
+    stem = f"eval_{args.checkpoint}" + ("_best_seed" if args.best_seed else "")
+    atomic_write(run / f"{stem}.json", json.dumps(result, indent=2))
+    atomic_write(run / f"{stem}.md", table)
     print(table)
-    print(f"written: {run / f'eval_{args.checkpoint}.json'}, {run / f'eval_{args.checkpoint}.md'}")
+    print(f"written: {run / f'{stem}.json'}, {run / f'{stem}.md'}")
     return 0
 
 
@@ -365,6 +367,9 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--episodes", type=int, default=100, help="greedy episodes per seed")
     ev.add_argument("--checkpoint", default="best", choices=["best", "final"])
     ev.add_argument("--seed", type=int, default=0)
+    ev.add_argument("--best-seed", action="store_true",
+                    help="only the seed with the highest greedy test return, as the paper's Table II reports the "
+                         "best of five seeds' models (writes eval_<checkpoint>_best_seed.json/.md)")
     ev.add_argument("--no-progress", action="store_true")
     ev.set_defaults(func=_evaluate)
     ex = sub.add_parser("export", help="write a run's policy as numpy .npy files (runs without JAX)")

@@ -99,6 +99,12 @@ def test_train_vdn_then_evaluate_best_checkpoint(tmp_path, capsys):
     table = (out / "eval_best.md").read_text()
     assert "| reward |" in table and "33.25 ± 0.46" in table
     assert "33.25 ± 0.46" in capsys.readouterr().out
+    # --best-seed: the paper's protocol, only the seed with the highest greedy test, in its own files
+    assert main(["evaluate", str(out), "--episodes", "6", "--no-progress", "--best-seed"]) == 0
+    best = json.loads((out / "eval_best_best_seed.json").read_text())
+    assert best["seed_selection"] == "best" and best["pooled"] == result["per_seed"][best["seed_indices"][0]]
+    assert "the best of 2 by greedy test return" in (out / "eval_best_best_seed.md").read_text()
+    assert json.loads((out / "eval_best.json").read_text()) == result          # the all-seeds evaluation is kept
     assert main(["evaluate", str(tmp_path / "missing")]) == 2
     assert "is not a run folder" in capsys.readouterr().err
     # scripts/pcp_failures.py: every episode is a success, a violation or a timeout with prey left

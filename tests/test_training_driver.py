@@ -3,6 +3,7 @@ checkpoint round trip, and refusal to mix runs."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -11,7 +12,8 @@ import pytest
 
 import marbler_jax
 from tests.helpers import interrupt_at
-from algorithms.driver import ALGORITHMS, SEED_BATCHING, load_params, load_run, make_tester, train
+from algorithms.driver import (ALGORITHMS, SEED_BATCHING, keep_improved, load_params, load_run, make_tester,
+                               seed_best_scores, train)
 from algorithms.ippo import IPPOConfig, make_train
 
 HP = dict(num_envs=8, num_steps=8, num_minibatches=2, update_epochs=1, hidden=16)
@@ -49,15 +51,19 @@ def test_interrupted_run_resumes_bit_exactly(tmp_path):
     for name in full:
         np.testing.assert_array_equal(full[name], cut[name], err_msg=name)
     assert (tmp_path / "cut" / "metrics.jsonl").read_text().count("\n") == 4
-    # the greedy test after every chunk picks the best checkpoint, also across the interruption
+    # the greedy test after every chunk picks each seed's best checkpoint, also across the interruption
     rows = [json.loads(line) for line in (tmp_path / "full" / "metrics.jsonl").read_text().splitlines()]
     tests = [r["test_return_mean"] for r in rows]
+    per_seed = np.array([r["test_returns"] for r in rows])                  # [chunks, seeds]
     assert all(np.isfinite(tests)) and len(set(tests)) > 1
-    best_step = rows[int(np.argmax(tests))]["update"]
+    np.testing.assert_allclose(per_seed.mean(axis=1), tests, rtol=1e-5)
+    last_improvement = max(rows[int(np.argmax(per_seed[:, s]))]["update"] for s in range(2))
     for run in ("full", "cut"):
-        assert ocp.CheckpointManager(tmp_path / run / "best").latest_step() == best_step
+        assert ocp.CheckpointManager(tmp_path / run / "best").latest_step() == last_improvement
     evaluation = json.loads((tmp_path / "full" / "evaluation.json").read_text())
-    assert evaluation["best_by"] == "greedy test return" and evaluation["best_return"] == max(tests)
+    assert evaluation["best_by"] == "greedy test return"
+    np.testing.assert_allclose(evaluation["best_return_per_seed"], per_seed.max(axis=0), rtol=1e-6)
+    assert evaluation["best_return"] == pytest.approx(per_seed.max(axis=0).mean(), rel=1e-6)
 
     # checkpoint round trip: the latest checkpoint restores the final parameters exactly
     manager = ocp.CheckpointManager(tmp_path / "full" / "checkpoints")
@@ -102,7 +108,13 @@ def test_greedy_tests_do_not_change_training(tmp_path):
         np.testing.assert_array_equal(with_test[name], without[name], err_msg=name)
     rows = [json.loads(line) for line in (tmp_path / "test" / "metrics.jsonl").read_text().splitlines()]
     assert [r["update"] for r in rows if "test_return_mean" in r] == [2, 4]
-    assert not any("test_return_mean" in line for line in (tmp_path / "none" / "metrics.jsonl").read_text().splitlines())
+    no_test = [json.loads(line) for line in (tmp_path / "none" / "metrics.jsonl").read_text().splitlines()]
+    assert not any("test_return_mean" in r for r in no_test)
+    # without tests each chunk's last line scores every seed by its mean training return over the chunk
+    # (none here: no episode ends in these few steps, so no seed has a score and none is "best" yet)
+    chunk_lines = [r for r in no_test if "chunk_returns" in r]
+    assert [r["update"] for r in chunk_lines] == [2, 4] and all(r["chunk_returns"] == [None, None] for r in chunk_lines)
+    assert not (tmp_path / "none" / "best").exists() or ocp.CheckpointManager(tmp_path / "none" / "best").latest_step() is None
     # the final test equals a direct greedy rollout of each seed's final parameters
     env = marbler_jax.make("simple_navigation")
     cfg = IPPOConfig(total_timesteps=STEPS, **HP)
@@ -111,6 +123,7 @@ def test_greedy_tests_do_not_change_training(tmp_path):
     keys = jax.random.split(jax.random.PRNGKey(0 + 7919), 2)
     per_seed = np.asarray(make_tester(env, lambda p: greedy(env, cfg, p), 8)(params, keys))
     assert rows[-1]["test_return_mean"] == pytest.approx(float(per_seed.mean()), rel=1e-5)
+    np.testing.assert_allclose(rows[-1]["test_returns"], per_seed, rtol=1e-5)
     assert rows[-1]["test_return_std"] == pytest.approx(float(per_seed.std()), rel=1e-4, abs=1e-5)
     from marbler_jax.rollout import batched_rollout
     seed0 = jax.tree_util.tree_map(lambda x: x[0], params)
@@ -123,3 +136,91 @@ def test_greedy_tests_do_not_change_training(tmp_path):
         train(out=tmp_path / "bad", test_episodes=-1, **common)
     with pytest.raises(ValueError, match="eval_episodes must be >= 0"):
         train(out=tmp_path / "bad", eval_episodes=-1, **common)
+
+
+def test_seed_best_scores_read_per_seed_scores_and_older_lines():
+    """Each seed's best chunk score from ``metrics.jsonl`` lines: per-seed test returns (None = no score),
+    chunk training returns for untested runs, and the mean over seeds for lines from before per-seed logs."""
+    lines = [json.dumps(row) for row in (
+        dict(update=1, return_mean=0.0),                                         # not a chunk's last line
+        dict(update=2, test_return_mean=1.5),                                    # older run: the mean only
+        dict(update=3, test_return_mean=2.0, test_returns=[3.0, None], chunk_returns=[9.0, 9.0]),
+        dict(update=4, test_return_mean=1.0, test_returns=[-1.0, 1.0]))]
+    np.testing.assert_array_equal(seed_best_scores(lines, 2, tested=True), [3.0, 1.5])
+    np.testing.assert_array_equal(seed_best_scores(lines, 2, tested=False), [9.0, 9.0])
+    np.testing.assert_array_equal(seed_best_scores([], 3, tested=True), [-np.inf] * 3)
+    # keep_improved: the new parameters of the improved seeds, the kept ones of the others
+    new, old = {"w": np.ones((2, 3))}, {"w": np.zeros((2, 3))}
+    np.testing.assert_array_equal(keep_improved(np.array([False, True]), new, old)["w"], [[0, 0, 0], [1, 1, 1]])
+    assert keep_improved(np.array([False, True]), new, None) is new
+
+
+TWO_SEEDS = dict(scenario="simple_navigation", algo="ippo", total_steps=STEPS, seeds=2, hp=HP, eval_episodes=0,
+                 checkpoint_every=1, keep=4, progress=False, log=lambda *a: None, test_episodes=16, seed=1)
+
+
+def test_best_checkpoint_keeps_each_seeds_best_and_evaluate_can_pick_the_best_seed(tmp_path):
+    """``best/`` holds, per seed, the parameters of that seed's best greedy test (each seed an independent
+    run); ``evaluate --best-seed`` plays only the seed with the highest one, as the paper's Table II does."""
+    from algorithms.evaluate import best_seed, evaluate_run, markdown_table
+
+    run = tmp_path / "run"
+    train(out=run, **TWO_SEEDS)
+    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    per_seed = np.array([r["test_returns"] for r in rows])                  # [4 chunks, 2 seeds]
+    best_chunk = per_seed.argmax(axis=0)
+    assert best_chunk[0] != best_chunk[1], best_chunk       # (seed=1 chosen so: a mean-over-seeds pick differs)
+    best = ocp.CheckpointManager(run / "best").restore(ocp.CheckpointManager(run / "best").latest_step())
+    checkpoints = ocp.CheckpointManager(run / "checkpoints")
+    for s in range(2):
+        at_best = checkpoints.restore(rows[best_chunk[s]]["update"])["params"]
+        jax.tree_util.tree_map(lambda a, b: np.testing.assert_array_equal(a[s], b[s]), best, at_best)
+
+    winner = int(per_seed.max(axis=0).argmax())
+    index, score = best_seed(run)
+    assert (index, score) == (winner, pytest.approx(per_seed.max()))
+    every = evaluate_run(run, episodes=4)
+    only = evaluate_run(run, episodes=4, seed_selection="best")
+    assert only["seed_indices"] == [winner] and every["seed_indices"] == [0, 1]
+    assert only["pooled"] == every["per_seed"][winner]          # the same seed, key and episodes
+    assert f"seed {winner}, the best of 2 by greedy test return" in markdown_table(only)
+    with pytest.raises(ValueError, match="seed_selection must be 'all' or 'best', got 'worst'"):
+        evaluate_run(run, episodes=4, seed_selection="worst")
+    # a multi-seed run from before the per-seed scores were logged cannot name its best seed
+    old = [json.dumps({k: v for k, v in r.items() if k != "test_returns"}) for r in rows]
+    (run / "metrics.jsonl").write_text("\n".join(old) + "\n")
+    with pytest.raises(ValueError, match="logs no per-seed scores"):
+        best_seed(run)
+
+
+def test_a_kill_before_the_checkpoint_commits_repeats_the_chunk(tmp_path, monkeypatch):
+    """The runner checkpoint is written last in a chunk: killed after the metrics and ``best/`` were
+    written but before it, a resumed run repeats that chunk and ends with the same parameters,
+    metrics lines and best checkpoint as an uninterrupted one."""
+    train(out=tmp_path / "full", **TWO_SEEDS)
+    save = ocp.CheckpointManager.save
+    killed = []
+
+    def save_or_die(self, step, *args, **kwargs):
+        if Path(self.directory).name == "checkpoints" and step == 2 and not killed:
+            killed.append(step)
+            raise KeyboardInterrupt
+        return save(self, step, *args, **kwargs)
+
+    monkeypatch.setattr(ocp.CheckpointManager, "save", save_or_die)
+    with pytest.raises(KeyboardInterrupt):
+        train(out=tmp_path / "cut", **TWO_SEEDS)
+    assert ocp.CheckpointManager(tmp_path / "cut" / "checkpoints").latest_step() == 1
+    assert (tmp_path / "cut" / "metrics.jsonl").read_text().count("\n") == 2       # chunk 2 written, not committed
+    train(out=tmp_path / "cut", resume=True, **TWO_SEEDS)
+
+    def lines(run):   # without the timings
+        return [{k: v for k, v in json.loads(line).items() if k != "sps"}
+                for line in (tmp_path / run / "metrics.jsonl").read_text().splitlines()]
+    assert lines("cut") == lines("full")
+    full, cut = np.load(tmp_path / "full" / "params.npz"), np.load(tmp_path / "cut" / "params.npz")
+    for name in full:
+        np.testing.assert_array_equal(full[name], cut[name], err_msg=name)
+    bests = [ocp.CheckpointManager(tmp_path / run / "best") for run in ("full", "cut")]
+    assert bests[0].latest_step() == bests[1].latest_step()
+    jax.tree_util.tree_map(np.testing.assert_array_equal, *(b.restore(b.latest_step()) for b in bests))
