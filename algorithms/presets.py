@@ -25,9 +25,10 @@ lambda 0.8, epsilon down to 0.01, 45M steps). It spends 8x less
 gradient work per env step than ``fast`` and computes its targets once per update
 (``cache_targets``): VDN on PCP runs 71-82k env-steps/s (one or two learner devices) and reached 28-31
 in ~14 minutes, QMIX_NS 32.55-33.03 in 13-14 (three seeds; with ``last_action``, its preset now, 33.40 / 33.33 /
-32.16 in 45M steps on a half-speed VM; ``fast`` recipes: ~9k env-steps/s, ~31-32 in 15 minutes;
-RESULTS.md). PQN's LayerNorm is an option (``layer_norm``),
-off here: on this CPU it cost 1.7x the wall time for ~1 point per sample. IPPO/MAPPO use ``fast``.
+32.16 / 33.03 / 32.77 / 33.28 in 45M steps on a half-speed VM, the best of three seeds 33.28 by the
+paper's rule; ``fast`` recipes: ~9k env-steps/s, ~31-32 in 15 minutes; RESULTS.md). PQN's LayerNorm is an
+option (``layer_norm``), off here: on this CPU it cost 1.7x the wall time for ~1 point per sample.
+IPPO/MAPPO use ``fast``.
 
 The value-based ``fast`` setting used 4 gradient steps per update (one per 8 episodes) until
 2026-11-21: 8x the env-steps/s (~21k vs ~2.7k), but VDN on PCP levelled off at a training return of
