@@ -217,10 +217,8 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         scores = test if tester else chunk_returns
         last = json.loads(lines[-1])
         if tester:
-            last.update(test_return_mean=test_mean, test_return_std=_nan_stat(np.nanstd, test),
-                        test_returns=_json_floats(test))
-        else:
-            last.update(chunk_returns=_json_floats(chunk_returns))
+            last.update(test_return_mean=test_mean, test_return_std=_nan_stat(np.nanstd, test))
+        last[SEED_SCORE_KEY[bool(tester)]] = _json_floats(scores)
         lines[-1] = json.dumps(last)
         if board is not None:
             for line in lines[-n:]:
@@ -277,6 +275,11 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     return result
 
 
+# metrics.jsonl key of each seed's score on a chunk's last line: greedy test returns, else (runs with
+# test_episodes=0) the chunk's mean training returns
+SEED_SCORE_KEY = {True: "test_returns", False: "chunk_returns"}
+
+
 def _json_floats(values) -> list:
     """Floats for JSON (NaN -> None)."""
     return [float(v) if np.isfinite(v) else None for v in np.asarray(values, dtype=float)]
@@ -290,7 +293,7 @@ def seed_best_scores(lines: list[str], seeds: int, tested: bool) -> np.ndarray:
     best = np.full(seeds, -np.inf)
     for line in lines:
         row = json.loads(line)
-        per_seed = row.get("test_returns" if tested else "chunk_returns")
+        per_seed = row.get(SEED_SCORE_KEY[tested])
         if per_seed is None:
             mean = row.get("test_return_mean") if tested else None
             if mean is None:

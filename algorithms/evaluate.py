@@ -109,21 +109,21 @@ def best_seed(run) -> tuple[int, float]:
     return for runs trained with ``test_episodes=0``), read from ``metrics.jsonl``: the model MARBLER's
     Table II reports ("we took the model that achieved the highest reward for each algorithm", of five
     seeds, and ran it for 100 episodes)."""
-    from algorithms.driver import seed_best_scores
+    from algorithms.driver import SEED_SCORE_KEY, seed_best_scores
 
     run = Path(run)
     config = json.loads((run / "config.json").read_text())
     metrics = run / "metrics.jsonl"
     lines = [line for line in metrics.read_text().splitlines() if line.strip()] if metrics.exists() else []
     tested = bool(config.get("test_episodes", 0))
-    per_seed_key = "test_returns" if tested else "chunk_returns"
+    per_seed_key = SEED_SCORE_KEY[tested]
     if config["seeds"] > 1 and not any(per_seed_key in json.loads(line) for line in lines):
         raise ValueError(f"{run} logs no per-seed scores ({per_seed_key!r} in metrics.jsonl: runs trained "
                          "before 2026-11-24 lack them); evaluate all seeds instead")
     scores = seed_best_scores(lines, config["seeds"], tested)
     if not np.isfinite(scores).any():
         raise ValueError(f"{run} has no scored chunk yet (metrics.jsonl); train first")
-    index = int(np.nanargmax(np.where(np.isfinite(scores), scores, np.nan)))
+    index = int(np.argmax(scores))                        # unscored seeds are -inf
     return index, float(scores[index])
 
 
