@@ -5,13 +5,13 @@ CBF, penalties; one gradient step per collected episode) for 2M env steps, one s
 greedy return of the driver's evaluation. The thresholds sit below what this code reaches
 (RESULTS.md, greedy after 2M steps: VDN 24.0-28.9, QMIX 24.1; random actions -4.8) and below the
 paper's simulated rewards (VDN 33.25, QMIX 30.02 after 5M steps). QMIX_NS trains with the
-``parallel`` preset (on PCP since 2026-11-24: GRU 32 with LayerNorm, gamma 0.95, lr 1e-3, 34M env steps, two
-learner devices: ~18 minutes on the slower development VMs; before, 45M steps of GRU 64: 13-14 minutes on the
+``parallel`` preset (on PCP since 2026-11-24: GRU 32 with LayerNorm, gamma 0.95, lr 1.5e-3, 28M env steps, two
+learner devices: 13-15 minutes on the slower development VMs; before, 45M steps of GRU 64: 13-14 minutes on the
 earlier host, 30 at half speed) and must reach the paper's QMIX_NS level over 500 greedy episodes:
 at least 31.5 (the paper: 31.76 ± 2.7 over its 5 seeds; our seven runs of the preset and its
 ``eps_spread`` variant 31.90-33.23, mean 32.68, sd 0.45, so a run below 31.5 is ~0.5 % likely). Since
 the preset gives each agent its previous action (``last_action``), this command gave 33.33 with the general settings
-(seed 3 with the flag: 33.40; ``--seed 1``: 32.16) and gives 33.56 / 33.51 (seeds 0 / 1) with the PCP-tuned ones, so
+(seed 3 with the flag: 33.40; ``--seed 1``: 32.16) and gives 33.46 / 33.61 (seeds 0 / 1) with the PCP-tuned ones, so
 the floor is now further below what it reaches.
 
     python -m pytest -m slow tests/test_learning_pcp.py
