@@ -104,6 +104,7 @@ _PARALLEL_STEPS = {"qmix_ns": 45_000_000}
 _PARALLEL_TUNED = {("qmix_ns", "predator_capture_prey"): (dict(hidden=32, layer_norm=True, gamma=0.95, lr=1.5e-3),
                                                           28_000_000)}
 
+
 def preset(name: str, scenario: str, algo: str) -> tuple[dict, dict, int]:
     """``(env_overrides, hyperparameters, total_steps)`` of preset ``name`` for ``algo`` on ``scenario``."""
     if name not in PRESET_NAMES:
