@@ -28,8 +28,9 @@ in ~14 minutes, QMIX_NS 32.55-33.03 in 13-14 (three seeds; with ``last_action``,
 32.16 / 33.03 / 32.77 / 33.28 in 45M steps on a half-speed VM, the best of three seeds 33.28 by the
 paper's rule; ``fast`` recipes: ~9k env-steps/s, ~31-32 in 15 minutes; RESULTS.md). PQN's LayerNorm is an
 option (``layer_norm``), off in general: with GRU 64 on this CPU it cost 1.7x the wall time for ~1 point per
-sample. QMIX_NS on PCP has its own tuned setting (since 2026-11-24): GRU 32 with LayerNorm, gamma 0.95, lr 1.5e-3,
-28M steps -- 33.46 / 33.61 for two seeds in 13-15 minutes on a half-speed 2-core VM.
+sample. QMIX_NS and VDN on PCP have their own tuned setting (since 2026-11-24): per-robot GRU 32 with LayerNorm,
+gamma 0.95, lr 1.5e-3 -- QMIX_NS 28M steps, 33.46 / 33.61 for two seeds in 13-15 minutes on a half-speed 2-core VM;
+VDN (per-robot networks instead of the paper's shared one) 36M steps, 33.14 / 33.47 (seeds 0 / 2) in 13 minutes there.
 IPPO/MAPPO use ``fast``.
 
 The value-based ``fast`` setting used 4 gradient steps per update (one per 8 episodes) until
@@ -101,8 +102,16 @@ _PARALLEL_STEPS = {"qmix_ns": 45_000_000}
 # 894 / 781 s for the whole command on a VM at half the earlier host's speed. lr 1e-3 needed 34M steps for the
 # same level (33.56 / 33.51, ~18 minutes there) and ended at 32.8-32.9 in 24-28M; the general settings gave
 # 33.00 on average over six seeds in 45M steps of GRU 64 (~2.2x the compute; RESULTS.md, 2026-11-24).
-_PARALLEL_TUNED = {("qmix_ns", "predator_capture_prey"): (dict(hidden=32, layer_norm=True, gamma=0.95, lr=1.5e-3),
-                                                          28_000_000)}
+#
+# VDN on Predator Capture Prey takes the same recipe with per-robot networks (``shared=False``, so no agent-ID input):
+# the one shared network levels off at 31.4-31.8 (two seeds of the general settings) and at 31.25 with this recipe,
+# where per-robot networks reach 32.86 in 28M steps, 33.46 in 40M (seed 0) and 33.37 in 36M (seed 1), and this
+# preset 33.14 / 33.47 (seeds 0 / 2; 500 episodes each) in 788 / 778 s for the whole command on the half-speed VM.
+# The paper's VDN shares one network (EPyMARL's default); ``--hp shared=true --hp agent_ids=true`` restores it.
+_SHORT_PCP = dict(hidden=32, layer_norm=True, gamma=0.95, lr=1.5e-3)
+_PARALLEL_TUNED = {("qmix_ns", "predator_capture_prey"): (_SHORT_PCP, 28_000_000),
+                   ("vdn", "predator_capture_prey"): (dict(_SHORT_PCP, shared=False, agent_ids=False, td_lambda=0.8,
+                                                           eps_finish=0.01), 36_000_000)}
 
 
 def preset(name: str, scenario: str, algo: str) -> tuple[dict, dict, int]:

@@ -4,15 +4,18 @@ VDN and QMIX train through the CLI with the ``fast`` preset (MARBLER's training 
 CBF, penalties; one gradient step per collected episode) for 2M env steps, one seed, and assert the
 greedy return of the driver's evaluation. The thresholds sit below what this code reaches
 (RESULTS.md, greedy after 2M steps: VDN 24.0-28.9, QMIX 24.1; random actions -4.8) and below the
-paper's simulated rewards (VDN 33.25, QMIX 30.02 after 5M steps). QMIX_NS trains with the
-``parallel`` preset (on PCP since 2026-11-24: GRU 32 with LayerNorm, gamma 0.95, lr 1.5e-3, 28M env steps, two
-learner devices: 13-15 minutes on the slower development VMs; before, 45M steps of GRU 64: 13-14 minutes on the
-earlier host, 30 at half speed) and must reach the paper's QMIX_NS level over 500 greedy episodes:
-at least 31.5 (the paper: 31.76 ± 2.7 over its 5 seeds; our seven runs of the preset and its
-``eps_spread`` variant 31.90-33.23, mean 32.68, sd 0.45, so a run below 31.5 is ~0.5 % likely). Since
-the preset gives each agent its previous action (``last_action``), this command gave 33.33 with the general settings
-(seed 3 with the flag: 33.40; ``--seed 1``: 32.16) and gives 33.46 / 33.61 (seeds 0 / 1) with the PCP-tuned ones, so
-the floor is now further below what it reaches.
+paper's simulated rewards (VDN 33.25, QMIX 30.02 after 5M steps).
+
+VDN and QMIX_NS also train with the ``parallel`` preset (on PCP: per-robot GRU 32 with LayerNorm, gamma 0.95,
+lr 1.5e-3; VDN 36M env steps, QMIX_NS 28M; two learner devices: 13-15 minutes per seed on the slower development
+VMs) and must reach the paper's reward for that algorithm over 500 greedy episodes, within the paper's spread.
+VDN: at least 32.8 (the paper: 33.25 ± 0.46, less that spread) for the better of two seeds trained in one
+program, the paper's protocol (it reports the best of 5 seeds' models; ``evaluate --best-seed``). Single seeds
+of the recipe gave 33.14, 33.47, 33.37 and 33.46 (RESULTS.md) and, under this suite's XLA flags (``-O2``: other
+float rounding, other samples), 32.67 alone and 33.57 / 33.42 as this check's two seeds (23 minutes on the slower
+VM): mean 33.30, sd 0.31, so one seed would miss 32.8 about one time in twenty, the better of two far more rarely. QMIX_NS: one seed, at least 31.5 (the paper: 31.76 ± 2.7; this command
+33.46 / 33.61 for seeds 0 / 1, the general settings 31.90-33.40 over thirteen runs). The paper's VDN shares one
+network over the robots; ours levels off at 31.4-31.8 that way (RESULTS.md), so the preset gives each robot its own.
 
     python -m pytest -m slow tests/test_learning_pcp.py
 """
@@ -41,15 +44,18 @@ def test_value_based_learners_capture_prey(tmp_path, algo, floor):
 
 
 @pytest.mark.slow
-def test_qmix_ns_parallel_preset_reaches_the_papers_qmix_ns_level(tmp_path):
+@pytest.mark.parametrize("algo, seeds, floor", [("qmix_ns", 1, 31.5), ("vdn", 2, 32.8)])
+def test_parallel_preset_reaches_the_papers_reward(tmp_path, algo, seeds, floor):
     from algorithms.evaluate import PAPER, evaluate_run
 
-    out = tmp_path / "qmix_ns"
+    out = tmp_path / algo
     # a fresh interpreter: two learner devices must be set before JAX starts
     subprocess.run([sys.executable, "-m", "marbler_jax.cli", "train", "--scenario", "predator_capture_prey",
-                    "--algo", "qmix_ns", "--preset", "parallel", "--hp", "learner_devices=2", "--out", str(out),
-                    "--no-progress"], check=True, timeout=3600)
-    result = evaluate_run(out, episodes=500)["pooled"]
-    assert PAPER["predator_capture_prey"]["qmix_ns"]["reward"] == (31.76, 2.7)
-    assert result["reward"]["mean"] >= 31.5, result
+                    "--algo", algo, "--preset", "parallel", "--hp", "learner_devices=2", "--seeds", str(seeds),
+                    "--out", str(out), "--no-progress"], check=True, timeout=3600)
+    # the paper's protocol with several seeds: the model of the seed with the best greedy test return
+    result = evaluate_run(out, episodes=500, seed_selection="best")["pooled"]
+    paper_reward, paper_std = PAPER["predator_capture_prey"][algo]["reward"]
+    assert (paper_reward, paper_std) == {"qmix_ns": (31.76, 2.7), "vdn": (33.25, 0.46)}[algo]
+    assert result["reward"]["mean"] >= floor >= paper_reward - paper_std, result
     assert result["prey_left"]["mean"] < 0.5, result

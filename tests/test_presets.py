@@ -47,7 +47,7 @@ def test_parallel_preset_trains_on_fresh_episodes_only(algo):
     TD(lambda) targets from the network that collected them (target copied once per update)."""
     env, hp, steps = preset("parallel", "predator_capture_prey", algo)
     cfg = build_config(algo, hp)
-    assert env == {"control_period": 15} and steps == (28_000_000 if algo == "qmix_ns" else 50_000_000)
+    assert env == {"control_period": 15} and steps == {"vdn": 36_000_000, "qmix_ns": 28_000_000}.get(algo, 50_000_000)
     assert cfg.buffer_size == cfg.num_envs == 256 and cfg.learning_starts == 0
     assert cfg.train_steps * cfg.batch_size == 4 * cfg.num_envs
     assert cfg.target_update_interval == cfg.train_steps and cfg.tau == 1.0
@@ -57,14 +57,18 @@ def test_parallel_preset_trains_on_fresh_episodes_only(algo):
     assert preset("parallel", "predator_capture_prey", "mappo") == preset("fast", "predator_capture_prey", "mappo")
 
 
-def test_qmix_ns_parallel_preset_is_tuned_on_pcp_only():
-    """QMIX_NS on PCP: GRU 32 + LayerNorm, gamma 0.95, lr 1.5e-3, 28M steps; elsewhere the general settings."""
-    _, pcp, pcp_steps = preset("parallel", "predator_capture_prey", "qmix_ns")
-    _, warehouse, warehouse_steps = preset("parallel", "warehouse", "qmix_ns")
+def test_parallel_preset_is_tuned_on_pcp_only():
+    """QMIX_NS and VDN on PCP: GRU 32 + LayerNorm, gamma 0.95, lr 1.5e-3 (VDN: per-robot networks, 36M steps;
+    QMIX_NS: 28M); elsewhere the general settings (GRU 64, gamma 0.99, lr 5e-4; VDN shares one network)."""
     tuned = dict(hidden=32, layer_norm=True, gamma=0.95, lr=1.5e-3)
-    assert {k: pcp[k] for k in tuned} == tuned and pcp_steps == 28_000_000
-    general = {k: v for k, v in pcp.items() if k not in ("layer_norm", "gamma")}   # those two: the algorithm's defaults
-    assert warehouse == {**general, "hidden": 64, "lr": 5e-4} and warehouse_steps == 45_000_000
-    cfg = build_config("qmix_ns", pcp)
-    assert cfg.hidden == 32 and cfg.layer_norm and cfg.gamma == 0.95 and cfg.lr == 1.5e-3
-    assert preset("parallel", "predator_capture_prey", "vdn")[1]["hidden"] == 64
+    for algo, pcp_steps, other_steps in (("qmix_ns", 28_000_000, 45_000_000), ("vdn", 36_000_000, 50_000_000)):
+        _, pcp, steps = preset("parallel", "predator_capture_prey", algo)
+        _, warehouse, warehouse_steps = preset("parallel", "warehouse", algo)
+        assert {k: pcp[k] for k in tuned} == tuned and steps == pcp_steps
+        assert warehouse_steps == other_steps and warehouse["hidden"] == 64 and warehouse["lr"] == 5e-4
+        assert not {"layer_norm", "gamma", "shared", "agent_ids"} & set(warehouse)   # the algorithm's defaults
+        cfg = build_config(algo, pcp)
+        assert cfg.hidden == 32 and cfg.layer_norm and cfg.gamma == 0.95 and cfg.lr == 1.5e-3
+        assert cfg.td_lambda == 0.8 and cfg.eps_finish == 0.01 and cfg.last_action
+        assert not cfg.shared and not cfg.agent_ids                   # per-robot networks on PCP
+    assert build_config("vdn", preset("parallel", "warehouse", "vdn")[1]).shared   # VDN shares one network elsewhere
