@@ -13,8 +13,9 @@ VDN: at least 32.8 (the paper: 33.25 ± 0.46, less that spread) for the better o
 program, the paper's protocol (it reports the best of 5 seeds' models; ``evaluate --best-seed``). Single seeds
 of the recipe gave 33.14, 33.47, 33.37 and 33.46 (RESULTS.md) and, under this suite's XLA flags (``-O2``: other
 float rounding, other samples), 32.67 alone and 33.57 / 33.42 as this check's two seeds (23 minutes on the slower
-VM): mean 33.30, sd 0.31, so one seed would miss 32.8 about one time in twenty, the better of two far more rarely. QMIX_NS: one seed, at least 31.5 (the paper: 31.76 ± 2.7; this command
-33.46 / 33.61 for seeds 0 / 1, the general settings 31.90-33.40 over thirteen runs). The paper's VDN shares one
+VM): mean 33.30, sd 0.31, so one seed would miss 32.8 about one time in twenty, the better of two far more
+rarely. QMIX_NS: one seed, at least 31.5 (the paper: 31.76 ± 2.7; this command 33.46 / 33.61 for seeds 0 / 1,
+the general settings 31.90-33.40 over thirteen runs). The paper's VDN shares one
 network over the robots; ours levels off at 31.4-31.8 that way (RESULTS.md), so the preset gives each robot its own.
 
     python -m pytest -m slow tests/test_learning_pcp.py
