@@ -104,7 +104,8 @@ _PARALLEL_STEPS = {"qmix_ns": 45_000_000}
 # 33.00 on average over six seeds in 45M steps of GRU 64 (~2.2x the compute; RESULTS.md, 2026-11-24).
 #
 # VDN on Predator Capture Prey takes the same recipe with per-robot networks (``shared=False``, so no agent-ID input):
-# the one shared network levels off at 31.4-31.8 (two seeds of the general settings) and at 31.25 with this recipe,
+# the one shared network levels off at 31.4-31.8 (two seeds of the general settings) and at 31.25 with this recipe
+# (at GRU 64: 32.91 in 28M steps, level with per-robot GRU 32, but at 0.57x the env-steps/s, 18 minutes),
 # where per-robot networks reach 32.86 in 28M steps, 33.46 in 40M (seed 0) and 33.37 in 36M (seed 1), and this
 # preset 33.14 / 33.47 (seeds 0 / 2; 500 episodes each) in 788 / 778 s for the whole command on the half-speed VM.
 # The paper's VDN shares one network (EPyMARL's default); ``--hp shared=true --hp agent_ids=true`` restores it.

@@ -16,7 +16,8 @@ float rounding, other samples), 32.67 alone and 33.57 / 33.42 as this check's tw
 VM): mean 33.30, sd 0.31, so one seed would miss 32.8 about one time in twenty, the better of two far more
 rarely. QMIX_NS: one seed, at least 31.5 (the paper: 31.76 ± 2.7; this command 33.46 / 33.61 for seeds 0 / 1,
 the general settings 31.90-33.40 over thirteen runs). The paper's VDN shares one
-network over the robots; ours levels off at 31.4-31.8 that way (RESULTS.md), so the preset gives each robot its own.
+network over the robots; ours levels off at 31.4-31.8 that way (32.9 at GRU 64, at half the speed; RESULTS.md), so
+the preset gives each robot its own.
 
     python -m pytest -m slow tests/test_learning_pcp.py
 """
