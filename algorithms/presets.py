@@ -91,8 +91,9 @@ _PARALLEL_Q = dict(hidden=64, cell="mingru", num_envs=256, buffer_size=256, batc
 # The discount stays EPyMARL's 0.99: QMIX_NS with gamma 0.95 learned faster (greedy test 31.0 against 20.7 at
 # 9M steps; 32.53 against 30.97 when cut to 22M steps) but ended level over the 45M steps (33.15 against 33.33),
 # and 0.9 was too short-sighted (29.93 against 31.34 with GRU 32 in 31M). --hp gamma=0.95 suits short budgets.
+_LONGER_TRACES = dict(td_lambda=0.8, eps_finish=0.01)
 _PARALLEL_HP = {"vdn": dict(_PARALLEL_Q, last_action=True), "qmix": dict(_PARALLEL_Q, lr=3e-4),
-                "qmix_ns": dict(_PARALLEL_Q, td_lambda=0.8, eps_finish=0.01, last_action=True)}
+                "qmix_ns": dict(_PARALLEL_Q, **_LONGER_TRACES, last_action=True)}
 _PARALLEL_STEPS = {"qmix_ns": 45_000_000}
 
 # QMIX_NS on Predator Capture Prey (tuned there, so only there): per-robot minimal GRU 32 with PQN's LayerNorm,
@@ -111,8 +112,8 @@ _PARALLEL_STEPS = {"qmix_ns": 45_000_000}
 # The paper's VDN shares one network (EPyMARL's default); ``--hp shared=true --hp agent_ids=true`` restores it.
 _SHORT_PCP = dict(hidden=32, layer_norm=True, gamma=0.95, lr=1.5e-3)
 _PARALLEL_TUNED = {("qmix_ns", "predator_capture_prey"): (_SHORT_PCP, 28_000_000),
-                   ("vdn", "predator_capture_prey"): (dict(_SHORT_PCP, shared=False, agent_ids=False, td_lambda=0.8,
-                                                           eps_finish=0.01), 36_000_000)}
+                   ("vdn", "predator_capture_prey"): (dict(_SHORT_PCP, **_LONGER_TRACES, shared=False, agent_ids=False),
+                                                           36_000_000)}
 
 
 def preset(name: str, scenario: str, algo: str) -> tuple[dict, dict, int]:
