@@ -34,7 +34,7 @@ def use_cpu_devices(n: int) -> None:
 
 
 def _mesh(devices: int) -> Mesh:
-    available = jax.devices()
+    available = jax.local_devices()        # this process's own, also under jax.distributed
     if len(available) < devices:
         raise ValueError(
             f"learner_devices={devices} needs {devices} devices but JAX has {len(available)} "

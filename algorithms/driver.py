@@ -2,7 +2,8 @@
 
 A run folder holds ``config.json``, ``metrics.jsonl`` (one line per update: env steps, return mean
 and std over seeds, episode length, collision / out-of-bounds rates; the greedy test return on the
-last line of each chunk), ``learning_curve.png``, orbax checkpoints (``checkpoints/`` last k,
+last line of each chunk), ``tests.jsonl`` (each chunk's greedy test: every seed's per-episode
+metrics), ``learning_curve.png``, orbax checkpoints (``checkpoints/`` last k,
 ``best/`` by greedy test return), ``params.npz`` (the final parameters,
 seed-major) and ``evaluation.json``. Every file is written to a temporary name and renamed (orbax
 does the same for checkpoints), so an interrupted run never leaves a half-written file, and
@@ -26,7 +27,7 @@ import marbler_jax
 from marbler_jax.registry import canonical_name
 from algorithms import ippo, mappo, qmix, vdn
 from algorithms.hang_guard import HangGuard, hang_message
-from marbler_jax.rollout import at_first_done, batched_rollout, episode_stats, make_rollout
+from marbler_jax.rollout import batched_rollout, episode_stats, first_episode_metrics, make_rollout
 
 # name -> (config class, make_train(env, cfg), greedy_policy(env, cfg, params))
 ALGORITHMS = {
@@ -72,16 +73,17 @@ SEED_BATCHING = {"vmap": lambda fn, xs: jax.vmap(fn)(xs), "map": jax.lax.map}
 
 
 def make_tester(env, greedy_of_params, episodes: int, over_seeds=SEED_BATCHING["vmap"]):
-    """Jitted ``(params [S, ...], keys [S, 2]) -> [S]``: each seed's mean greedy return over the first
-    episode of ``episodes`` batched envs (fresh initial states from that seed's key). Every episode
-    ends within ``env.max_steps`` steps, so each env contributes exactly one return."""
+    """Jitted ``(params [S, ...], keys [S, 2]) -> {metric: [S, episodes]}``: each seed's greedy
+    episodes (:func:`marbler_jax.rollout.first_episode_metrics` of the first episode of ``episodes``
+    batched envs, fresh initial states from that seed's key). Every episode ends within
+    ``env.max_steps`` steps, so each env contributes exactly one episode."""
     if episodes < 1:
         raise ValueError(f"test episodes must be >= 1 (or 0 for no test), got {episodes}")
 
     def one(args):
         params, key = args
         _, (_, done, info) = batched_rollout(env, key, episodes, env.max_steps, greedy_of_params(params))
-        return jnp.mean(at_first_done(done, info["episode_return"]))
+        return first_episode_metrics(env, done, info)
 
     return jax.jit(lambda params, keys: over_seeds(one, (params, keys)))
 
@@ -160,15 +162,14 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     manager = ocp.CheckpointManager(checkpoints, options=options)
     best_manager = ocp.CheckpointManager(out / "best", options=ocp.CheckpointManagerOptions(
         max_to_keep=1, enable_async_checkpointing=False))
-    lines, done = [], 0
+    lines, test_lines, done = [], [], 0
     if resume and manager.latest_step() is not None:
         done = int(manager.latest_step())
         # as host arrays (orbax would commit them to one device) they go wherever the training program
         # runs, e.g. on every device of a data-parallel learner, like a fresh runner's
         runner = jax.tree_util.tree_map(np.asarray, manager.restore(done, args=ocp.args.StandardRestore(runner)))
-        if (out / "metrics.jsonl").exists():
-            lines = [line for line in (out / "metrics.jsonl").read_text().splitlines()
-                     if line.strip() and json.loads(line)["update"] <= done]
+        lines = _lines_upto(out / "metrics.jsonl", done)
+        test_lines = _lines_upto(out / TESTS_FILE, done)
         log(f"resuming from update {done} of {num_updates}")
     best_scores = seed_best_scores(lines, seeds, tested=bool(test_episodes))
     best_params = None
@@ -198,7 +199,8 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
             runner, metrics = jax.block_until_ready(run_fns[n](runner))
         chunk_s = time.perf_counter() - t0
         with guard():
-            test = np.asarray(tester(runner["params"], test_keys)) if tester else None
+            episodes = jax.tree_util.tree_map(np.asarray, tester(runner["params"], test_keys)) if tester else None
+        test = episodes["reward"].mean(-1) if tester else None
         test_mean = _nan_stat(np.nanmean, test) if tester else None
         metrics = jax.tree_util.tree_map(np.asarray, metrics)
         for i in range(n):
@@ -240,6 +242,10 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
             best_manager.save(done, args=ocp.args.StandardSave(best_params), force=True)
             best_manager.wait_until_finished()
         atomic_write(out / "metrics.jsonl", "\n".join(lines) + "\n")
+        if tester:
+            test_lines.append(json.dumps(dict(update=done, env_steps=done * steps_per_update, episodes={
+                name: [_json_floats(np.round(np.asarray(row, float), 5)) for row in values] for name, values in episodes.items()})))
+            atomic_write(out / TESTS_FILE, "\n".join(test_lines) + "\n")
         plot_learning_curve(out / "metrics.jsonl", out / "learning_curve.png", f"{algo} on {scenario}")
         manager.save(done, args=ocp.args.StandardSave(host))  # last: the checkpoint commits the chunk
         manager.wait_until_finished()
@@ -273,6 +279,18 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         log(f"greedy return {trained['return']:.2f} vs random {random['return']:.2f}; "
             f"collisions {trained['collision_rate']:.1%}, out of bounds {trained['out_of_bounds_rate']:.1%}")
     return result
+
+
+# one line per chunk: the greedy test's per-episode metrics of every seed ({"update", "env_steps",
+# "episodes": {metric: [seeds][episodes]}})
+TESTS_FILE = "tests.jsonl"
+
+
+def _lines_upto(path: Path, update: int) -> list[str]:
+    """The lines of a JSON-lines log up to ``update`` (a resumed run drops what came after its checkpoint)."""
+    if not path.exists():
+        return []
+    return [line for line in path.read_text().splitlines() if line.strip() and json.loads(line)["update"] <= update]
 
 
 # metrics.jsonl key of each seed's score on a chunk's last line: greedy test returns, else (runs with

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import marbler_jax
-from marbler_jax.rollout import at_first_done, make_rollout
+from marbler_jax.rollout import first_episode_metrics, make_rollout
 
 # MARBLER paper, Table II, simulated experiments: (mean, std) per scenario / algorithm / metric.
 PAPER = {
@@ -60,16 +60,7 @@ def first_episodes(env, traj) -> dict[str, np.ndarray]:
     done = np.asarray(done)
     if not done.any(axis=0).all():
         raise ValueError("every env must finish an episode; roll out at least env.max_steps steps")
-
-    def at(key):
-        return np.asarray(at_first_done(done, np.asarray(info[key])))
-
-    steps = np.where(at("violation"), env.max_steps, at("steps"))
-    out = {"reward": at("episode_return"), "steps": steps.astype(float),
-           "collisions": 100.0 * at("episode_collided"), "out_of_bounds": 100.0 * at("episode_out_of_bounds")}
-    for key in env.metric_names:
-        out[key] = at(key).astype(float)
-    return out
+    return {k: np.asarray(v, dtype=float) for k, v in first_episode_metrics(env, done, info).items()}
 
 
 def greedy_episodes(env, policy, episodes: int, key) -> dict[str, np.ndarray]:

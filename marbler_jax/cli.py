@@ -1,16 +1,18 @@
 """The ``marbler-jax`` command line (also ``python -m marbler_jax``).
 
-Subcommands so far:
+Subcommands:
     demo     -- batched swap rollout of Robotarium robots under a barrier certificate: prints
                 collisions, closest approach and throughput, saves a trajectory plot.
     rollout  -- batched random-policy rollout of a scenario: episode metrics, env-steps/s and
                 an optional GIF of the first env.
     list     -- scenarios with their robots, observation/action sizes and default config.
-    train    -- train IPPO, MAPPO, VDN, QMIX or QMIX_NS on a scenario (presets fast/paper) and
+    train    -- train IPPO, MAPPO, VDN, QMIX or QMIX_NS on a scenario (its recipe by default) and
                 write a run folder.
     evaluate -- MARBLER's Table II metrics of a run's best checkpoint (JSON + Markdown).
     render   -- GIF/MP4 of a run's greedy policy or a scenario with random actions (``--envs K``: a grid).
     export   -- a run's policy as numpy ``.npy`` files, and (``--bundle``) a flat Robotarium submission.
+    benchmark -- MARBLER's Table II grid: every cell's seeds trained with the recipes, one results file.
+    report   -- the benchmark's tables (IQM, CIs, best seed, the paper), curves, probability of improvement.
     quickstart -- the main job: train IPPO on simple_navigation, evaluate, plot, render a GIF.
     bench    -- run ``scripts/bench_cbf.py`` (barrier + integrator throughput).
 """
@@ -164,9 +166,10 @@ def _restart_resumed(argv, idle: float) -> None:
 
 def _train(args) -> int:
     from algorithms.driver import train
-    from algorithms.presets import preset
+    from algorithms.recipes import settings
+    from marbler_jax.registry import canonical_name
 
-    env_overrides, hp, steps = preset(args.preset, args.scenario, args.algo)
+    env_overrides, hp, steps = settings(args.preset, canonical_name(args.scenario), args.algo)
     env_overrides.update(parse_overrides(args.set))
     hp.update(parse_overrides(args.hp))
     if isinstance(hp.get("learner_devices"), int):
@@ -181,6 +184,37 @@ def _train(args) -> int:
           seed_batching=args.seed_batching, hang_seconds=args.hang_seconds, test_episodes=args.test_episodes,
           eval_episodes=args.eval_episodes, on_hang=lambda idle: _restart_resumed(args.argv, idle))
     print(f"run folder: {args.out}")
+    return 0
+
+
+def _benchmark(args) -> int:
+    process_id, processes = args.process_id, args.num_processes
+    if not args.coordinator and (process_id, processes) != (0, 1):
+        raise ValueError("--num-processes / --process-id need --coordinator HOST:PORT")
+    if args.learner_devices > 1:
+        from algorithms.data_parallel import use_cpu_devices
+
+        use_cpu_devices(args.learner_devices)        # before JAX first runs
+    if args.coordinator:
+        import jax
+
+        jax.distributed.initialize(args.coordinator, num_processes=processes, process_id=process_id)
+        process_id, processes = jax.process_index(), jax.process_count()
+    from algorithms.benchmark import run_benchmark
+
+    total = int(float(args.total_steps)) if args.total_steps else None
+    run_benchmark(args.out, args.algos, args.scenarios, args.seeds, total, args.eval_points, args.test_episodes,
+                  args.absolute_factor, args.learner_devices, args.seed, progress=not args.no_progress,
+                  process_index=process_id, process_count=processes)
+    print(f"results: {args.out}; tables and curves: marbler-jax report {args.out}")
+    return 0
+
+
+def _report(args) -> int:
+    from algorithms.report import write_report
+
+    written = write_report(args.results, args.out, reps=args.reps)
+    print("\n".join(f"written: {p}" for p in written))
     return 0
 
 
@@ -309,8 +343,9 @@ def _bench(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from algorithms.benchmark import PAPER_ALGOS, PAPER_SCENARIOS
     from algorithms.driver import ALGORITHMS
-    from algorithms.presets import PRESET_NAMES
+    from algorithms.recipes import RECIPE_NAMES
     from marbler_jax import cbf, physics
 
     parser = argparse.ArgumentParser(prog="marbler-jax", description="Batched Robotarium simulation and MARL in JAX.")
@@ -338,9 +373,10 @@ def build_parser() -> argparse.ArgumentParser:
     tr = sub.add_parser("train", help="train an algorithm on a scenario (writes a run folder)")
     tr.add_argument("--scenario", default="simple_navigation")
     tr.add_argument("--algo", default="ippo", choices=sorted(ALGORITHMS))
-    tr.add_argument("--preset", default="fast", choices=list(PRESET_NAMES),
-                    help="settings to start from (fast: our CPU setting; paper: MARBLER/EPyMARL's; none)")
-    tr.add_argument("--total-steps", default=None, help="env steps per seed (e.g. 5e6; default: the preset's)")
+    tr.add_argument("--preset", default="recipe", choices=list(RECIPE_NAMES),
+                    help="settings to start from (recipe: the algorithm's benchmark recipe, algorithms/recipes.py; "
+                         "paper: MARBLER's EPyMARL settings; none: the algorithm's defaults)")
+    tr.add_argument("--total-steps", default=None, help="env steps per seed (e.g. 5e6; default: the recipe's)")
     tr.add_argument("--seeds", type=int, default=1, help="seeds trained in one vmapped program")
     tr.add_argument("--seed", type=int, default=0,
                     help="base PRNG seed: the seeds' keys are split from PRNGKey(seed) (default 0)")
@@ -393,6 +429,34 @@ def build_parser() -> argparse.ArgumentParser:
     rd.add_argument("--set", action="append", default=[], help="scenario config override key=value")
     rd.add_argument("--no-progress", action="store_true")
     rd.set_defaults(func=_render)
+    bm = sub.add_parser("benchmark", help="MARBLER's Table II grid: every cell's seeds trained with the recipes, "
+                        "tested during training, one marl-eval results file (resumable)")
+    bm.add_argument("--algos", nargs="+", default=list(PAPER_ALGOS), choices=sorted(ALGORITHMS))
+    bm.add_argument("--scenarios", nargs="+", default=list(PAPER_SCENARIOS))
+    bm.add_argument("--seeds", type=int, default=5, help="seeds per cell, trained in one vmapped program")
+    bm.add_argument("--out", default="results/marbler-table2", help="results folder (results.json, runs/)")
+    bm.add_argument("--total-steps", default=None, help="env steps per seed for every cell (default: each recipe's)")
+    bm.add_argument("--eval-points", type=int, default=20, help="greedy tests during training")
+    bm.add_argument("--test-episodes", type=int, default=64, help="episodes per seed at each test")
+    bm.add_argument("--absolute-factor", type=int, default=10,
+                    help="the absolute metric evaluates each seed's best checkpoint over this many times "
+                         "--test-episodes episodes")
+    bm.add_argument("--learner-devices", type=int, default=1,
+                    help="CPU devices each value-based gradient step is split over (2 on a 2-core CPU)")
+    bm.add_argument("--seed", type=int, default=0, help="base PRNG seed of every cell")
+    bm.add_argument("--coordinator", default=None, metavar="HOST:PORT",
+                    help="JAX distributed coordinator: with --num-processes and --process-id, each process takes "
+                         "its share of the cells and writes results-p<id>.json")
+    bm.add_argument("--num-processes", type=int, default=1)
+    bm.add_argument("--process-id", type=int, default=0)
+    bm.add_argument("--no-progress", action="store_true")
+    bm.set_defaults(func=_benchmark)
+    rp = sub.add_parser("report", help="tables (IQM, 95%% CI, best seed, paper), curves and probability of "
+                        "improvement from a benchmark's results")
+    rp.add_argument("results", help="benchmark folder (its results*.json are merged)")
+    rp.add_argument("--out", default=None, help="report folder (default: the results folder)")
+    rp.add_argument("--reps", type=int, default=2000, help="bootstrap resamples")
+    rp.set_defaults(func=_report)
     qs = sub.add_parser("quickstart", help="the main job: train, evaluate, plot and render (a few minutes)")
     qs.add_argument("--out", default="runs/quickstart")
     qs.set_defaults(func=_quickstart)

@@ -38,12 +38,14 @@ def scenario_class(name: str) -> type[Scenario]:
 
 
 def canonical_name(name: str) -> str:
-    """``name`` with a custom scenario's ``file.py`` made absolute (what run folders store)."""
+    """The one name of a scenario, as run folders, recipes and results store it: a MARBLER alias
+    resolved (``"pcp"`` -> ``"predator_capture_prey"``), a custom scenario's ``file.py`` made absolute."""
     if ":" in name:
         where, cls = name.rsplit(":", 1)
         if where.endswith(".py"):
             return f"{Path(where).resolve()}:{cls}"
-    return name
+        return name
+    return ALIASES.get(name, name)
 
 
 def _import_scenario(spec: str) -> type[Scenario]:

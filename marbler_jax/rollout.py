@@ -73,6 +73,27 @@ def at_first_done(done, x):
     return x[first, jnp.arange(done.shape[1])]
 
 
+EPISODE_METRICS = ("reward", "steps", "collisions", "out_of_bounds")
+"""The metrics of every episode (MARBLER's Table II); scenarios add theirs (``env.metric_names``)."""
+
+
+def first_episode_metrics(env, done, info) -> dict:
+    """MARBLER's Table II metrics of the first episode each env finished, ``{name: [E]}`` float32, from
+    ``done [T, E]`` and ``info`` entries ``[T, E]`` (jittable; numpy inputs work too): ``reward`` (team
+    return), ``steps`` (episode length, the step limit where a violation ended it, as the paper counts),
+    ``collisions`` / ``out_of_bounds`` (100 where the episode had one, else 0: their mean is a
+    percentage of episodes) and the scenario's own metrics (``prey_left``, ``material_left``, ...)."""
+    def at(key):
+        return jnp.asarray(at_first_done(done, info[key]), jnp.float32)
+
+    out = {"reward": at("episode_return"),
+           "steps": jnp.where(at("violation") > 0, jnp.float32(env.max_steps), at("steps")),
+           "collisions": 100.0 * at("episode_collided"), "out_of_bounds": 100.0 * at("episode_out_of_bounds")}
+    for key in env.metric_names:
+        out[key] = at(key)
+    return out
+
+
 def episode_stats(traj) -> dict[str, float]:
     """Mean metrics over the episodes that finished in a rollout trajectory."""
     rewards, done, info = traj

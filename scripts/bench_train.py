@@ -10,11 +10,11 @@ than two programs timed alternately in one (BENCHMARKS.md). Learning starts at u
 Markdown table.
 
     python scripts/bench_train.py --out bench_out/train.json
-    python scripts/bench_train.py --algos vdn --presets fast --scenario predator_capture_prey
-    python scripts/bench_train.py --algos vdn qmix --presets fast --seeds 1 5   # seeds vmapped in one program
-    python scripts/bench_train.py --algos vdn qmix --presets fast --learner-devices 1 2   # data-parallel steps
-    python scripts/bench_train.py --algos vdn --presets fast --learner-devices 2 --hp cell=mingru   # preset + overrides
-    python scripts/bench_train.py --algos qmix_ns --presets parallel --learner-devices 2 --repeats 6 \
+    python scripts/bench_train.py --algos vdn --presets recipe --scenario predator_capture_prey
+    python scripts/bench_train.py --algos vdn qmix --presets recipe --seeds 1 5   # seeds vmapped in one program
+    python scripts/bench_train.py --algos vdn qmix --presets recipe --learner-devices 1 2   # data-parallel steps
+    python scripts/bench_train.py --algos vdn --presets recipe --learner-devices 2 --hp cell=mingru   # preset + overrides
+    python scripts/bench_train.py --algos qmix_ns --presets recipe --learner-devices 2 --repeats 6 \
         --variants last_action=true last_action=false        # an A/B of one setting, timed alternately
 
 ``--hp key=value`` (repeatable, as in ``marbler-jax train``) overrides a preset's hyperparameters for
@@ -37,7 +37,7 @@ from tqdm.auto import tqdm
 import marbler_jax
 from algorithms.data_parallel import use_cpu_devices
 from algorithms.driver import ALGORITHMS, atomic_write, build_config, has_setting
-from algorithms.presets import preset
+from algorithms.recipes import settings
 from marbler_jax.cli import parse_overrides
 
 
@@ -45,7 +45,7 @@ def prepare(scenario: str, algo: str, preset_name: str, updates: int, seeds: int
             learner_devices: int = 1, overrides: dict | None = None) -> dict:
     """Builds and compiles one configuration's chunk of ``updates`` updates: its row (without timings)
     and ``run() -> None``, which runs the chunk once from the same runner state and waits for it."""
-    env_overrides, hp, _ = preset(preset_name, scenario, algo)
+    env_overrides, hp, _ = settings(preset_name, scenario, algo)
     hp.update({key: value for key, value in (overrides or {}).items() if has_setting(algo, key)})
     if has_setting(algo, "learning_starts"):
         hp["learning_starts"] = 0
@@ -93,7 +93,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scenario", default="predator_capture_prey")
     parser.add_argument("--algos", nargs="+", default=["ippo", "mappo", "vdn", "qmix", "qmix_ns"])
-    parser.add_argument("--presets", nargs="+", default=["fast", "paper"])
+    parser.add_argument("--presets", nargs="+", default=["recipe", "paper"])
     parser.add_argument("--updates", type=int, default=5, help="updates per timed chunk")
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--seeds", type=int, nargs="+", default=[1], help="seed counts (vmapped in one program)")

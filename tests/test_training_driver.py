@@ -121,7 +121,14 @@ def test_greedy_tests_do_not_change_training(tmp_path):
     greedy = ALGORITHMS["ippo"][2]
     params = load_params(tmp_path / "test" / "params.npz")
     keys = jax.random.split(jax.random.PRNGKey(0 + 7919), 2)
-    per_seed = np.asarray(make_tester(env, lambda p: greedy(env, cfg, p), 8)(params, keys))
+    episodes = make_tester(env, lambda p: greedy(env, cfg, p), 8)(params, keys)
+    assert set(episodes) == {"reward", "steps", "collisions", "out_of_bounds"} and episodes["reward"].shape == (2, 8)
+    per_seed = np.asarray(episodes["reward"]).mean(-1)
+    # tests.jsonl holds those per-episode metrics of every seed at every test
+    tests = [json.loads(line) for line in (tmp_path / "test" / "tests.jsonl").read_text().splitlines()]
+    assert [t["update"] for t in tests] == [2, 4] and not (tmp_path / "none" / "tests.jsonl").exists()
+    for name, values in episodes.items():
+        np.testing.assert_allclose(tests[-1]["episodes"][name], np.asarray(values), rtol=1e-4, atol=1e-4)
     assert rows[-1]["test_return_mean"] == pytest.approx(float(per_seed.mean()), rel=1e-5)
     np.testing.assert_allclose(rows[-1]["test_returns"], per_seed, rtol=1e-5)
     assert rows[-1]["test_return_std"] == pytest.approx(float(per_seed.std()), rel=1e-4, abs=1e-5)
@@ -218,6 +225,8 @@ def test_a_kill_before_the_checkpoint_commits_repeats_the_chunk(tmp_path, monkey
         return [{k: v for k, v in json.loads(line).items() if k != "sps"}
                 for line in (tmp_path / run / "metrics.jsonl").read_text().splitlines()]
     assert lines("cut") == lines("full")
+    # the test log too: chunk 2's line, written before the kill, is not doubled by the repeat
+    assert (tmp_path / "cut" / "tests.jsonl").read_text() == (tmp_path / "full" / "tests.jsonl").read_text()
     full, cut = np.load(tmp_path / "full" / "params.npz"), np.load(tmp_path / "cut" / "params.npz")
     for name in full:
         np.testing.assert_array_equal(full[name], cut[name], err_msg=name)

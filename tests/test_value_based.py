@@ -10,7 +10,7 @@ import pytest
 import marbler_jax
 from algorithms import buffer as episode_buffer
 from algorithms import qmix, vdn
-from algorithms.presets import preset
+from algorithms.recipes import PAPER, RECIPES
 from marbler_jax.rollout import episode_stats, make_rollout
 
 
@@ -148,10 +148,8 @@ def test_targets_are_computed_once_per_update_only_where_that_is_exact_and_cheap
                    dict(buffer_size=32),                 # more sequences than the update samples: dearer
                    dict(cache_targets=False)):
         assert not vdn.VDNConfig(**dict(per_update, **change)).targets_per_update, change
-    _, hp, _ = preset("parallel", "predator_capture_prey", "qmix_ns")
-    assert qmix.QMIXNSConfig(**hp).targets_per_update
-    _, hp, _ = preset("fast", "predator_capture_prey", "vdn")
-    assert not vdn.VDNConfig(**hp).targets_per_update
+    assert RECIPES["qmix_ns"].config.targets_per_update
+    assert not PAPER["vdn"].config.targets_per_update
 
 
 def test_eps_spread_gives_each_env_its_own_exploration_rate():
@@ -340,15 +338,15 @@ def test_vdn_learns_simple_navigation():
 
 
 def test_vdn_learns_simple_navigation_from_fresh_episodes_only():
-    """The ``parallel`` preset's learner, scaled down: no replay beyond the update's own episodes,
+    """The recipe's learner, scaled down: no replay beyond the update's own episodes,
     each sample used 4 times, TD(lambda) targets from the collecting network, minimal GRU (greedy -40
     after 200k steps; random -85)."""
-    _, hp, _ = preset("parallel", "simple_navigation", "vdn")
+    hp = RECIPES["vdn"].hyperparameters()
     assert hp["buffer_size"] == hp["num_envs"] and hp["train_steps"] == hp["target_update_interval"]
     hp.update(num_envs=32, buffer_size=32, batch_size=32, train_steps=4, target_update_interval=4,
               eps_decay_steps=40_000, lr=1e-3)
     cfg = vdn.VDNConfig(total_timesteps=200_000, **hp)
-    assert cfg.targets_per_update          # as the preset: targets once per update
+    assert cfg.targets_per_update          # as the recipe: targets once per update
     _learns(vdn, cfg)
 
 

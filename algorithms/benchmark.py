@@ -1,0 +1,168 @@
+"""``marbler-jax benchmark``: MARBLER's Table II grid trained with the recipes, several seeds per cell.
+
+Each cell (scenario x algorithm) trains its seeds in one program (vmapped) with the algorithm's recipe
+(:mod:`algorithms.recipes`) into ``OUT/runs/<scenario>/<algo>``, tests every seed greedily at
+``eval_points`` evenly spaced points of training (``test_episodes`` episodes each, the same initial
+states at every point) and ends with the *absolute metric*: each seed's best checkpoint (by test
+return) over ``absolute_factor x test_episodes`` fresh episodes. The cell is then appended to the
+results file in marl-eval's layout::
+
+    {"marbler": {scenario: {algo: {"run_<seed>": {
+        "step_<i>": {"step_count": env_steps, metric: [per-episode values]},
+        "absolute_metrics": {metric: [per-episode values], "best_test_return": [x],
+                             "env_steps": [per seed], "train_seconds": [updates' time, all seeds],
+                             "wall_seconds": [the cell's wall time in its last session]}}}}}}
+
+with the metrics of :data:`marbler_jax.rollout.EPISODE_METRICS` and the scenario's own (``prey_left``,
+``material_left``, ...). The file is rewritten atomically after every cell. A rerun skips the cells the
+file holds and resumes an interrupted cell from its last checkpoint (bit-exactly).
+
+Several processes (or hosts) share the grid through JAX's distributed runtime: process ``i`` of ``n``
+takes every ``n``-th cell and writes ``results-p<i>.json``; ``marbler-jax report`` merges the files.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+import marbler_jax
+from algorithms.driver import (ALGORITHMS, TESTS_FILE, atomic_write, build_config, has_setting, seed_best_scores,
+                               train)
+from algorithms.recipes import recipe
+from marbler_jax.registry import canonical_name
+
+ENV_NAME = "marbler"
+PAPER_ALGOS = ("vdn", "qmix", "qmix_ns", "mappo", "ippo")
+PAPER_SCENARIOS = ("predator_capture_prey", "warehouse", "material_transport", "arctic_transport")
+ABSOLUTE = "absolute_metrics"
+
+
+def results_name(process_index: int = 0, process_count: int = 1) -> str:
+    """The results file one process writes (``results.json`` alone, ``results-p<i>.json`` among several)."""
+    return "results.json" if process_count == 1 else f"results-p{process_index}.json"
+
+
+def load_results(folder: str | Path) -> dict:
+    """Every ``results*.json`` of ``folder`` merged into one marl-eval dict."""
+    merged: dict = {}
+    for path in sorted(Path(folder).glob("results*.json")):
+        try:
+            data = json.loads(path.read_text())
+        except json.JSONDecodeError as err:
+            raise ValueError(f"{path} is not valid JSON ({err})") from None
+        for env_name, tasks in data.items():
+            for task, algos in tasks.items():
+                merged.setdefault(env_name, {}).setdefault(task, {}).update(algos)
+    return merged
+
+
+def finished_cells(results: dict) -> set[tuple[str, str]]:
+    """``{(scenario, algo)}`` the results hold."""
+    return {(task, algo) for task, algos in results.get(ENV_NAME, {}).items() for algo in algos}
+
+
+def grid(algos, scenarios, process_index: int = 0, process_count: int = 1) -> list[tuple[str, str]]:
+    """This process's share of the ``scenarios x algos`` cells (canonical names, every ``process_count``-th)."""
+    unknown = sorted(set(algos) - set(ALGORITHMS))
+    if unknown:
+        raise ValueError(f"unknown algorithm(s) {unknown}; available: {sorted(ALGORITHMS)}")
+    cells = [(canonical_name(s), a) for s in scenarios for a in algos]
+    if len(set(cells)) != len(cells):
+        raise ValueError(f"the grid names a cell twice: {cells}")
+    return cells[process_index::process_count]
+
+
+def training_seconds(metrics: list[dict], seeds: int) -> float:
+    """Seconds the run's updates took (from each ``metrics.jsonl`` line's env-steps/s; no compilation, tests
+    or checkpoints), summed over every session of a resumed run."""
+    steps = [m["env_steps"] for m in metrics]
+    per_update = [b - a for a, b in zip([0] + steps[:-1], steps)]
+    return float(sum(seeds * n / m["sps"] for n, m in zip(per_update, metrics)))
+
+
+def cell_runs(run: Path, env, greedy_of_params, seeds: int, absolute_episodes: int, key) -> dict:
+    """The marl-eval ``{"run_<k>": ...}`` entries of a trained cell's run folder ``run``."""
+    from algorithms.evaluate import greedy_episodes, restore_params
+
+    tests = [json.loads(line) for line in (run / TESTS_FILE).read_text().splitlines() if line.strip()]
+    metrics = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines() if line.strip()]
+    best_scores = seed_best_scores([json.dumps(m) for m in metrics], seeds, tested=True)
+    best = restore_params(run, "best")
+    runs = {}
+    for s in range(seeds):
+        entry = {f"step_{i}": {"step_count": t["env_steps"], **{m: v[s] for m, v in t["episodes"].items()}}
+                 for i, t in enumerate(tests)}
+        params = jax.tree_util.tree_map(lambda x: np.asarray(x[s]), best)
+        episodes = greedy_episodes(env, greedy_of_params(params), absolute_episodes, jax.random.fold_in(key, s))
+        entry[ABSOLUTE] = {m: [round(float(x), 5) for x in v] for m, v in episodes.items()}
+        entry[ABSOLUTE].update(best_test_return=[float(best_scores[s])], env_steps=[int(tests[-1]["env_steps"])],
+                               train_seconds=[round(training_seconds(metrics, seeds), 1)])
+        runs[f"run_{s}"] = entry
+    return runs
+
+
+def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS, seeds: int = 5,
+                  total_steps: int | None = None, eval_points: int = 20, test_episodes: int = 64,
+                  absolute_factor: int = 10, learner_devices: int = 1, seed: int = 0, progress: bool = True,
+                  process_index: int = 0, process_count: int = 1, recipes=None, log=print, on_chunk=None) -> dict:
+    """Train and evaluate this process's share of the grid into ``out``; returns its results dict.
+    ``recipes``: ``{algo: Recipe}`` instead of :data:`algorithms.recipes.RECIPES`."""
+    recipes = dict(recipes or {})
+
+    def recipe_of(algo):
+        return recipes[algo] if algo in recipes else recipe(algo)
+
+    for name, value, low in (("seeds", seeds, 1), ("eval_points", eval_points, 1), ("test_episodes", test_episodes, 1),
+                             ("absolute_factor", absolute_factor, 1), ("learner_devices", learner_devices, 1)):
+        if not isinstance(value, int) or value < low:
+            raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+    if total_steps is not None and total_steps < 1:
+        raise ValueError(f"total_steps must be >= 1, got {total_steps}")
+    cells = grid(algos, scenarios, process_index, process_count)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / results_name(process_index, process_count)
+    results = json.loads(path.read_text()) if path.exists() else {}
+    done = finished_cells(results)
+    todo = [c for c in cells if c not in done]
+    log(f"benchmark: {len(cells)} cell(s) for this process, {len(cells) - len(todo)} already in {path}")
+    spent_steps, spent_seconds = 0, 0.0
+    budgets = [int(total_steps or recipe_of(a).total_steps(s)) * seeds for s, a in todo]
+    for i, (scenario, algo) in enumerate(todo):
+        k = len(cells) - len(todo) + i + 1
+        env_overrides, hp, steps = recipe_of(algo).settings(scenario)
+        steps = int(total_steps or steps)
+        if learner_devices > 1 and has_setting(algo, "learner_devices"):
+            hp["learner_devices"] = learner_devices
+        env = marbler_jax.make(scenario, **env_overrides)
+        cfg = build_config(algo, dict(hp, total_timesteps=steps))
+        updates = ALGORITHMS[algo][1](env, cfg).num_updates
+        eta = f", ETA {sum(budgets[i:]) * spent_seconds / spent_steps / 3600:.1f} h" if spent_steps else ""
+        log(f"cell {k}/{len(cells)}: {algo} on {scenario}, {seeds} seed(s) x {steps:,} env steps{eta}")
+        run = out / "runs" / scenario / algo
+        t0 = time.perf_counter()
+        train(scenario, algo, steps, seeds, run, env_overrides=env_overrides, hp=hp, eval_episodes=0,
+              checkpoint_every=max(1, updates // eval_points), resume=(run / "config.json").exists(), seed=seed,
+              progress=progress, log=log, test_episodes=test_episodes, on_chunk=on_chunk)
+        greedy = ALGORITHMS[algo][2]
+        runs = cell_runs(run, env, lambda p: greedy(env, cfg, p), seeds, absolute_factor * test_episodes,
+                         jax.random.PRNGKey(seed + 2024))
+        seconds = time.perf_counter() - t0
+        for entry in runs.values():
+            entry[ABSOLUTE]["wall_seconds"] = [round(seconds, 1)]
+        results.setdefault(ENV_NAME, {}).setdefault(scenario, {})[algo] = runs
+        atomic_write(path, json.dumps(results))
+        spent_steps += steps * seeds
+        spent_seconds += seconds
+        best = max(runs.values(), key=lambda r: r[ABSOLUTE]["best_test_return"][0])[ABSOLUTE]["reward"]
+        log(f"cell {k}/{len(cells)} done in {seconds / 60:.1f} min: best seed's reward {np.mean(best):.2f} "
+            f"over {len(best)} episodes -> {path}")
+    return results
+
+
+__all__ = ["run_benchmark", "load_results", "finished_cells", "grid", "results_name", "PAPER_ALGOS",
+           "PAPER_SCENARIOS", "ENV_NAME"]

@@ -1,0 +1,133 @@
+"""Training recipes: one typed recipe per algorithm, used on every scenario.
+
+A :class:`Recipe` is an algorithm's config (its own frozen dataclass, every field typed and validated
+by the algorithm), the env settings it trains under and its step budget per scenario. ``marbler-jax
+train`` and ``marbler-jax benchmark`` start from :func:`recipe` unless told otherwise, so the command a
+user types is the one the benchmark's table reports.
+
+The algorithms keep the MARBLER paper's definitions, since its Table II compares them: VDN, QMIX and
+MAPPO share one network across robots (with an agent-ID one-hot), QMIX_NS has one per robot, IPPO shares
+one with a critic on each robot's own observation. All train in MARBLER's training control loop
+(controller and barrier recomputed every ``control_period = 15`` ticks).
+
+The value-based recipe learns from parallel fresh episodes the way PQN does (Gallici et al. 2024): 256
+episodes per update, no replay beyond them, each sample used four times (16 gradient steps of 64
+sequences), TD(lambda 0.8) targets from the network that collected the episodes, a minimal GRU of 32
+units with LayerNorm, gamma 0.95, Adam at 1.5e-3 decaying to 0, epsilon 1 -> 0.01 over 5M steps and
+each robot's previous action in its input. The PPO recipe is CleanRL/MAPPO's clipped PPO over 64
+parallel envs.
+
+``paper`` holds the settings of MARBLER's EPyMARL model files instead (``../shared/spec/scenarios.md``
+E.2): GRU 128 agents, gamma 0.99, 5000-episode buffer, one gradient step per collected episode, 5M env
+steps (MAPPO 25M). It is for comparison; on a CPU it runs at ~1k env-steps/s.
+"""
+from __future__ import annotations
+
+import dataclasses
+from types import MappingProxyType
+from typing import Any, Mapping
+
+from algorithms.ippo import IPPOConfig
+from algorithms.mappo import MAPPOConfig
+from algorithms.qmix import QMIXConfig, QMIXNSConfig
+from algorithms.vdn import VDNConfig
+
+RECIPE_NAMES = ("recipe", "paper", "none")
+"""What ``marbler-jax train --preset`` accepts: the algorithm's recipe (default), MARBLER's EPyMARL
+settings, or every setting at the algorithm's and scenario's defaults."""
+
+# MARBLER's training control loop: controller and barrier every 15 ticks (0.5 s).
+TRAINING_ENV = MappingProxyType({"control_period": 15})
+
+
+@dataclasses.dataclass(frozen=True)
+class Recipe:
+    """How one algorithm is trained: ``config`` (the algorithm's typed config; its ``total_timesteps``
+    is replaced by the scenario's budget), ``env`` (env config overrides), ``steps`` (env steps per seed
+    for each scenario, ``default_steps`` elsewhere) and ``why`` (one sentence for each scenario whose
+    entry is more than a step budget)."""
+
+    algo: str
+    config: Any
+    env: Mapping[str, Any] = dataclasses.field(default_factory=lambda: TRAINING_ENV)
+    steps: Mapping[str, int] = dataclasses.field(default_factory=lambda: MappingProxyType({}))
+    default_steps: int = 10_000_000
+    why: Mapping[str, str] = dataclasses.field(default_factory=lambda: MappingProxyType({}))
+
+    def total_steps(self, scenario: str) -> int:
+        """Env steps per seed on the canonical ``scenario``."""
+        return int(self.steps.get(scenario, self.default_steps))
+
+    def hyperparameters(self) -> dict:
+        """The config's fields as ``marbler-jax train --hp`` would give them (no ``total_timesteps``)."""
+        hp = dataclasses.asdict(self.config)
+        hp.pop("total_timesteps")
+        return hp
+
+    def settings(self, scenario: str) -> tuple[dict, dict, int]:
+        """``(env_overrides, hyperparameters, total_steps)`` for the canonical ``scenario``."""
+        return dict(self.env), self.hyperparameters(), self.total_steps(scenario)
+
+
+def _frozen(**kw) -> Mapping:
+    return MappingProxyType(dict(kw))
+
+
+_VALUE = dict(hidden=32, cell="mingru", layer_norm=True, num_envs=256, buffer_size=256, batch_size=64,
+              train_steps=16, target_update_interval=16, td_lambda=0.8, double_q=False, lr=1.5e-3,
+              lr_decay=True, gamma=0.95, eps_finish=0.01, eps_decay_steps=5_000_000, learning_starts=0,
+              last_action=True)
+_PPO = dict(lr=1e-3, num_envs=64, num_steps=64, hidden=128, update_epochs=4, num_minibatches=4, ent_coef=0.01)
+
+# Env steps per seed; one value-based step costs about as much on every scenario (Warehouse has 6 robots).
+_VALUE_STEPS = _frozen(predator_capture_prey=20_000_000, warehouse=20_000_000, material_transport=20_000_000,
+                       arctic_transport=20_000_000, simple_navigation=2_000_000)
+_PPO_STEPS = _frozen(predator_capture_prey=20_000_000, warehouse=20_000_000, material_transport=20_000_000,
+                     arctic_transport=20_000_000, simple_navigation=300_000)
+
+RECIPES: Mapping[str, Recipe] = MappingProxyType({
+    "vdn": Recipe("vdn", VDNConfig(**_VALUE), steps=_VALUE_STEPS),
+    "qmix": Recipe("qmix", QMIXConfig(**_VALUE), steps=_VALUE_STEPS),
+    "qmix_ns": Recipe("qmix_ns", QMIXNSConfig(**_VALUE), steps=_VALUE_STEPS),
+    "mappo": Recipe("mappo", MAPPOConfig(**_PPO), steps=_PPO_STEPS),
+    "ippo": Recipe("ippo", IPPOConfig(**_PPO), steps=_PPO_STEPS),
+})
+
+_PAPER_Q = dict(hidden=128, max_grad_norm=10.0, gamma=0.99, buffer_size=5000, batch_size=32, num_envs=8,
+                train_steps=8, eps_decay_steps=50_000, learning_starts=32 * 81)
+_PAPER_PPO = dict(hidden=128, lr=2e-4, update_epochs=4, clip_eps=0.2, ent_coef=0.01, num_envs=64, num_steps=64)
+_PAPER_Q_STEPS = 5_000_000
+
+PAPER: Mapping[str, Recipe] = MappingProxyType({
+    "vdn": Recipe("vdn", VDNConfig(**_PAPER_Q, lr=3e-4, target_update_interval=200), default_steps=_PAPER_Q_STEPS),
+    "qmix": Recipe("qmix", QMIXConfig(**_PAPER_Q, lr=1e-4, tau=0.01, mixer_embed=32, hypernet_hidden=64),
+                   default_steps=_PAPER_Q_STEPS),
+    "qmix_ns": Recipe("qmix_ns", QMIXNSConfig(**dict(_PAPER_Q, hidden=64), lr=5e-4, target_update_interval=200),
+                      default_steps=_PAPER_Q_STEPS),
+    "mappo": Recipe("mappo", MAPPOConfig(**_PAPER_PPO), default_steps=25_000_000),
+    "ippo": Recipe("ippo", IPPOConfig(**_PAPER_PPO), default_steps=25_000_000),
+})
+
+
+def recipe(algo: str, name: str = "recipe") -> Recipe:
+    """The ``name`` recipe (see :data:`RECIPE_NAMES`) of ``algo``."""
+    if name not in RECIPE_NAMES:
+        raise ValueError(f"unknown preset {name!r}; available: {list(RECIPE_NAMES)}")
+    table = RECIPES if name == "recipe" else PAPER
+    if algo not in RECIPES:
+        raise ValueError(f"unknown algorithm {algo!r}; available: {sorted(RECIPES)}")
+    if name == "none":
+        return Recipe(algo, type(table[algo].config)(), env=MappingProxyType({}), default_steps=1_000_000)
+    return table[algo]
+
+
+def settings(name: str, scenario: str, algo: str) -> tuple[dict, dict, int]:
+    """``(env_overrides, hyperparameters, total_steps)`` of recipe ``name`` for ``algo`` on the canonical
+    ``scenario``; ``"none"`` gives no hyperparameters (the algorithm's defaults)."""
+    chosen = recipe(algo, name)
+    if name == "none":
+        return {}, {}, chosen.default_steps
+    return chosen.settings(scenario)
+
+
+__all__ = ["Recipe", "RECIPES", "PAPER", "RECIPE_NAMES", "TRAINING_ENV", "recipe", "settings"]

@@ -1,0 +1,232 @@
+"""``marbler-jax report``: a benchmark's results as tables, sample-efficiency curves and probabilities of
+improvement.
+
+Statistics follow Agarwal et al. 2021 ("Deep RL at the edge of the statistical precipice") through
+``rliable``: a run's score is its mean over the absolute metric's episodes (its best checkpoint, fresh
+episodes); a cell reports the interquartile mean (IQM) of its runs with a 95 % stratified-bootstrap
+confidence interval. Beside it stands the MARBLER paper's protocol -- the model of the seed with the
+best greedy test return during training, mean and std over its episodes -- and the paper's own value
+(Table II, simulation). Curves show the IQM (and its CI) of the runs' mean test reward against env
+steps; the probability of improvement ``P(X > Y)`` compares two algorithms' runs on one scenario.
+"""
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from algorithms.benchmark import ABSOLUTE, ENV_NAME, load_results
+from algorithms.driver import atomic_write
+from algorithms.evaluate import PAPER
+
+# Table order and direction: True where higher is better.
+METRICS = {"reward": True, "steps": False, "prey_left": False, "material_left": False, "collisions": False,
+           "out_of_bounds": False}
+TITLES = {"reward": "Reward (team episode return)", "steps": "Steps (episode length; the limit after a violation)",
+          "prey_left": "Prey left (Predator Capture Prey)", "material_left": "Material left (Material Transport)",
+          "collisions": "Collisions (% of episodes)", "out_of_bounds": "Out of bounds (% of episodes)"}
+VIOLATION_LIMIT = 1.0        # % of episodes: the benchmark's bound for collisions and out of bounds
+ALGO_ORDER = ("vdn", "qmix", "qmix_ns", "mappo", "ippo")
+SCENARIO_ORDER = ("predator_capture_prey", "warehouse", "material_transport", "arctic_transport")
+
+
+def _rliable():
+    try:
+        from rliable import library as rly
+        from rliable import metrics
+    except ImportError as err:
+        raise ValueError(f"marbler-jax report needs rliable ({err}); install it with "
+                         "pip install 'marbler-jax[benchmark]'") from None
+    return rly, metrics
+
+
+def _bootstrap(score_dict: dict, func, reps: int, seed: int = 0):
+    """rliable's ``get_interval_estimates`` (95 % percentile CIs) with a fixed seed, reproducible."""
+    rly, _ = _rliable()
+    with warnings.catch_warnings():      # arch deprecates the RandomState that rliable hands it
+        warnings.simplefilter("ignore", FutureWarning)
+        return rly.get_interval_estimates(score_dict, func, reps=reps, random_state=np.random.RandomState(seed))
+
+
+def run_scores(runs: dict, metric: str) -> np.ndarray:
+    """Each run's mean of ``metric`` over its absolute-metric episodes, ``[runs]``."""
+    return np.array([np.mean(runs[name][ABSOLUTE][metric]) for name in sorted(runs, key=_run_index)])
+
+
+def _run_index(name: str) -> int:
+    return int(name.rsplit("_", 1)[1])
+
+
+def iqm_ci(scores: np.ndarray, reps: int = 2000, seed: int = 0) -> tuple[float, float, float]:
+    """``(IQM, low, high)`` of ``scores [runs]`` with a 95 % bootstrap CI over runs (rliable)."""
+    _, metrics = _rliable()
+    point, interval = _bootstrap({"x": np.asarray(scores, float)[:, None]},
+                                 lambda x: np.array([metrics.aggregate_iqm(x)]), reps, seed)
+    return float(point["x"][0]), float(interval["x"][0, 0]), float(interval["x"][1, 0])
+
+
+def best_seed_run(runs: dict) -> str:
+    """The run whose best greedy test return during training was highest (the paper's pick)."""
+    return max(sorted(runs, key=_run_index), key=lambda name: runs[name][ABSOLUTE]["best_test_return"][0])
+
+
+def probability_of_improvement(x: np.ndarray, y: np.ndarray, reps: int = 2000,
+                               seed: int = 0) -> tuple[float, float, float]:
+    """``(P(X > Y), low, high)`` for run scores ``x [n]``, ``y [m]`` (ties count one half), 95 % CI."""
+    _, metrics = _rliable()
+    point, interval = _bootstrap({"xy": [np.asarray(x, float)[:, None], np.asarray(y, float)[:, None]]},
+                                 lambda a, b: np.array([metrics.probability_of_improvement(a, b)]), reps, seed)
+    return float(point["xy"][0]), float(interval["xy"][0, 0]), float(interval["xy"][1, 0])
+
+
+def _ordered(names, order):
+    return sorted(names, key=lambda n: (order.index(n) if n in order else len(order), n))
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.2f}" if abs(x) < 1000 else f"{x:,.0f}"
+
+
+def reached(metric: str, ours: float, paper: float | None) -> bool | None:
+    """Whether ``ours`` is at least as good as the paper's value (violations: at most 1 % of episodes)."""
+    if metric in ("collisions", "out_of_bounds"):
+        return ours <= VIOLATION_LIMIT
+    if paper is None:
+        return None
+    return ours >= paper if METRICS[metric] else ours <= paper
+
+
+def metric_table(results: dict, metric: str, reps: int) -> str | None:
+    """One metric's Markdown table over every cell that has it; None where no cell does."""
+    tasks = results.get(ENV_NAME, {})
+    rows = []
+    for scenario in _ordered(tasks, SCENARIO_ORDER):
+        for algo in _ordered(tasks[scenario], ALGO_ORDER):
+            runs = tasks[scenario][algo]
+            if metric not in next(iter(runs.values()))[ABSOLUTE]:
+                continue
+            scores = run_scores(runs, metric)
+            iqm, low, high = iqm_ci(scores, reps)
+            best = runs[best_seed_run(runs)][ABSOLUTE][metric]
+            best_mean = float(np.mean(best))
+            paper = PAPER.get(scenario, {}).get(algo, {}).get(metric)
+            ok = reached(metric, best_mean, paper[0] if paper else None)
+            steps = runs["run_0"][ABSOLUTE]["env_steps"][0]
+            rows.append(f"| {scenario} | {algo} | {len(runs)} | {steps / 1e6:g}M | {_fmt(iqm)} [{_fmt(low)}, {_fmt(high)}] "
+                        f"| {_fmt(best_mean)} ± {_fmt(float(np.std(best)))} | "
+                        f"{f'{paper[0]:g} ± {paper[1]:g}' if paper else '—'} | "
+                        f"{'—' if ok is None else ('yes' if ok else '**no**')} |")
+    if not rows:
+        return None
+    head = [f"### {TITLES[metric]}", "",
+            "| scenario | algorithm | seeds | env steps / seed | IQM [95 % CI] | best seed (mean ± std) | paper | reached |",
+            "|---|---|---|---|---|---|---|---|"]
+    return "\n".join(head + rows) + "\n"
+
+
+def improvement_table(runs_by_algo: dict, reps: int) -> str:
+    """Markdown matrix of ``P(row > column)`` of the runs' absolute reward, with 95 % CIs."""
+    algos = _ordered(runs_by_algo, ALGO_ORDER)
+    scores = {a: run_scores(runs_by_algo[a], "reward") for a in algos}
+    lines = ["| P(row > column) | " + " | ".join(algos) + " |", "|---|" + "---|" * len(algos)]
+    for x in algos:
+        cells = []
+        for y in algos:
+            if x == y:
+                cells.append("—")
+                continue
+            p, low, high = probability_of_improvement(scores[x], scores[y], reps)
+            cells.append(f"{p:.2f} [{low:.2f}, {high:.2f}]")
+        lines.append(f"| {x} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def curve_points(runs: dict) -> tuple[np.ndarray, np.ndarray]:
+    """``(env_steps [P], scores [runs, P])``: each run's mean test reward at every test point."""
+    names = sorted(runs, key=_run_index)
+    steps_keys = sorted((k for k in runs[names[0]] if k.startswith("step_")), key=_run_index)
+    steps = np.array([runs[names[0]][k]["step_count"] for k in steps_keys], float)
+    scores = np.array([[np.mean(runs[n][k]["reward"]) for k in steps_keys] for n in names])
+    return steps, scores
+
+
+def plot_curves(scenario: str, runs_by_algo: dict, png: Path, reps: int) -> None:
+    """IQM (95 % CI band) of the runs' test reward against env steps, one line per algorithm."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    _, metrics = _rliable()
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for algo in _ordered(runs_by_algo, ALGO_ORDER):
+        steps, scores = curve_points(runs_by_algo[algo])
+        point, interval = _bootstrap(
+            {algo: scores[:, None, :]},
+            lambda x: np.array([metrics.aggregate_iqm(x[..., j]) for j in range(x.shape[-1])]), reps)
+        line, = ax.plot(steps, point[algo], lw=1.6, label=f"{algo} ({scores.shape[0]} seeds)")
+        ax.fill_between(steps, interval[algo][0], interval[algo][1], color=line.get_color(), alpha=0.2)
+    for algo, values in PAPER.get(scenario, {}).items():
+        if algo in runs_by_algo:
+            ax.axhline(values["reward"][0], ls=":", lw=1, color="grey")
+    ax.set_xlabel("env steps per seed")
+    ax.set_ylabel("greedy test reward (IQM, 95 % CI)")
+    ax.set_title(f"{scenario} (dotted: the paper's values)")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    tmp = png.with_name(png.stem + ".tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    tmp.replace(png)
+
+
+def report_markdown(results: dict, reps: int = 2000, image_prefix: str = "") -> str:
+    """The whole report as Markdown (``image_prefix``: the curves' folder relative to the document)."""
+    tasks = results.get(ENV_NAME, {})
+    if not tasks:
+        raise ValueError("the results hold no cell yet; run marbler-jax benchmark first")
+    cells = [(s, a) for s in tasks for a in tasks[s]]
+    seconds = sum(next(iter(tasks[s][a].values()))[ABSOLUTE].get("train_seconds", [0.0])[0] for s, a in cells)
+    parts = [f"{len(cells)} cell(s); a run's score is its best checkpoint's mean over "
+             f"{len(next(iter(tasks[cells[0][0]][cells[0][1]].values()))[ABSOLUTE]['reward'])} fresh greedy episodes. "
+             "IQM over seeds with a 95 % stratified-bootstrap CI (rliable); *best seed* is the paper's protocol "
+             "(the seed with the best greedy test return during training, mean ± std over its episodes); "
+             "*reached*: best seed at least as good as the paper (collisions and out of bounds: at most "
+             f"{VIOLATION_LIMIT:g} % of episodes). Training time of all cells: {seconds / 3600:.2f} h "
+             "(updates only, summed over cells).", ""]
+    for metric in METRICS:
+        table = metric_table(results, metric, reps)
+        if table:
+            parts += [table, ""]
+    parts.append("### Sample efficiency and probability of improvement\n")
+    for scenario in _ordered(tasks, SCENARIO_ORDER):
+        parts += [f"#### {scenario}", "", f"![{scenario}]({image_prefix}curves_{scenario}.png)", ""]
+        if len(tasks[scenario]) > 1:
+            parts += [improvement_table(tasks[scenario], reps), ""]
+    return "\n".join(parts)
+
+
+def write_report(folder: str | Path, out: str | Path | None = None, reps: int = 2000) -> list[Path]:
+    """``report.md`` and ``curves_<scenario>.png`` of the benchmark in ``folder`` (into ``out``)."""
+    if not isinstance(reps, int) or reps < 10:
+        raise ValueError(f"reps must be an integer >= 10, got {reps!r}")
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ValueError(f"{folder} is not a benchmark folder")
+    results = load_results(folder)
+    out = Path(out) if out else folder
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for scenario, runs_by_algo in results.get(ENV_NAME, {}).items():
+        png = out / f"curves_{scenario}.png"
+        plot_curves(scenario, runs_by_algo, png, reps)
+        written.append(png)
+    report = out / "report.md"
+    atomic_write(report, "## MARBLER benchmark\n\n" + report_markdown(results, reps))
+    return [report] + written
+
+
+__all__ = ["write_report", "report_markdown", "iqm_ci", "probability_of_improvement", "run_scores",
+           "best_seed_run", "metric_table", "curve_points", "reached"]

@@ -1,0 +1,137 @@
+"""``marbler-jax benchmark`` and ``report``: the results file, its statistics and a tiny resumable grid."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from algorithms import benchmark, report
+from algorithms.benchmark import ABSOLUTE, ENV_NAME, finished_cells, grid, load_results, run_benchmark
+
+pytest.importorskip("rliable")
+
+
+def _runs(rewards_per_run, best_test=None, steps=(100, 200)):
+    runs = {}
+    for k, rewards in enumerate(rewards_per_run):
+        entry = {f"step_{i}": {"step_count": s, "reward": [float(r) * (i + 1) / len(steps) for r in rewards]}
+                 for i, s in enumerate(steps)}
+        entry[ABSOLUTE] = {"reward": [float(r) for r in rewards], "steps": [50.0] * len(rewards),
+                           "collisions": [0.0] * len(rewards), "out_of_bounds": [0.0] * len(rewards),
+                           "best_test_return": [float(best_test[k] if best_test else np.mean(rewards))],
+                           "env_steps": [steps[-1]], "train_seconds": [10.0]}
+        runs[f"run_{k}"] = entry
+    return runs
+
+
+def test_results_files_merge_and_name_their_cells(tmp_path):
+    a = {ENV_NAME: {"warehouse": {"vdn": _runs([[1.0]])}}}
+    b = {ENV_NAME: {"warehouse": {"qmix": _runs([[2.0]])}, "predator_capture_prey": {"vdn": _runs([[3.0]])}}}
+    (tmp_path / "results-p0.json").write_text(json.dumps(a))
+    (tmp_path / "results-p1.json").write_text(json.dumps(b))
+    merged = load_results(tmp_path)
+    assert finished_cells(merged) == {("warehouse", "vdn"), ("warehouse", "qmix"), ("predator_capture_prey", "vdn")}
+    assert merged[ENV_NAME]["warehouse"]["qmix"] == b[ENV_NAME]["warehouse"]["qmix"]
+    (tmp_path / "results-p1.json").write_text("{broken")
+    with pytest.raises(ValueError, match="results-p1.json is not valid JSON"):
+        load_results(tmp_path)
+
+
+def test_grid_canonicalises_and_shares_cells_between_processes():
+    cells = grid(["vdn", "qmix"], ["pcp", "warehouse"])
+    assert cells == [("predator_capture_prey", "vdn"), ("predator_capture_prey", "qmix"), ("warehouse", "vdn"),
+                     ("warehouse", "qmix")]
+    assert grid(["vdn", "qmix"], ["pcp", "warehouse"], 1, 2) == [cells[1], cells[3]]
+    with pytest.raises(ValueError, match="unknown algorithm"):
+        grid(["dqn"], ["warehouse"])
+    with pytest.raises(ValueError, match="names a cell twice"):
+        grid(["vdn"], ["pcp", "predator_capture_prey"])
+
+
+def test_iqm_and_its_interval_on_known_scores():
+    iqm, low, high = report.iqm_ci(np.arange(8.0), reps=200)
+    assert iqm == pytest.approx(3.5)              # the middle half: 2, 3, 4, 5
+    assert low <= iqm <= high and low >= 0 and high <= 7
+    assert report.iqm_ci(np.full(5, 2.5), reps=50) == pytest.approx((2.5, 2.5, 2.5))
+
+
+def test_probability_of_improvement_on_known_scores():
+    assert report.probability_of_improvement([3.0, 4.0], [1.0, 2.0], reps=50) == pytest.approx((1.0, 1.0, 1.0))
+    assert report.probability_of_improvement([1.0], [1.0], reps=50)[0] == pytest.approx(0.5)   # ties count half
+    # x = [1, 3] against y = [2]: one win, one loss
+    assert report.probability_of_improvement([1.0, 3.0], [2.0], reps=50)[0] == pytest.approx(0.5)
+
+
+def test_best_seed_is_the_best_test_return_and_reached_compares_with_the_paper():
+    runs = _runs([[30.0, 32.0], [34.0, 36.0], [20.0, 22.0]], best_test=[33.0, 31.0, 40.0])
+    assert report.best_seed_run(runs) == "run_2"           # picked by training-time test, not by evaluation
+    assert report.reached("reward", 33.3, 33.25) and not report.reached("reward", 33.2, 33.25)
+    assert report.reached("steps", 50.0, 55.0) and not report.reached("prey_left", 0.1, 0.0)
+    assert report.reached("collisions", 1.0, None) and not report.reached("out_of_bounds", 1.5, None)
+    assert report.reached("reward", 1.0, None) is None
+
+
+def test_report_renders_tables_curves_and_improvement(tmp_path):
+    results = {ENV_NAME: {"predator_capture_prey": {"vdn": _runs([[33.0, 34.0], [30.0, 31.0]]),
+                                                    "qmix": _runs([[20.0, 21.0], [25.0, 26.0]])}}}
+    (tmp_path / "results.json").write_text(json.dumps(results))
+    written = report.write_report(tmp_path, reps=50)
+    text = (tmp_path / "report.md").read_text()
+    assert [p.name for p in written] == ["report.md", "curves_predator_capture_prey.png"]
+    assert "| predator_capture_prey | vdn | 2 | 0.0002M | 32.00 [" in text
+    assert "| 33.50 ± 0.50 | 33.25 ± 0.46 | yes |" in text       # best seed run_0 against the paper
+    assert "| qmix | 0.00 [0.00, 0.00] | — |" in text              # P(qmix > vdn)
+    assert (tmp_path / "curves_predator_capture_prey.png").stat().st_size > 1000
+    with pytest.raises(ValueError, match="no cell yet"):
+        report.report_markdown({})
+
+
+def test_tiny_benchmark_writes_resumes_and_reports(tmp_path):
+    """2 algorithms x 1 scenario x 2 seeds on a tiny budget; killed in its second cell, rerun: the first
+    cell is not trained again and the second resumes from its checkpoint."""
+    out, logs = tmp_path / "bench", []
+    kwargs = dict(algos=["ippo", "mappo"], scenarios=["simple"], seeds=2, total_steps=3 * 1024, eval_points=3,
+                  test_episodes=4, absolute_factor=2, progress=False, log=logs.append)
+    from algorithms import recipes
+
+    small = {a: recipes.Recipe(a, type(r.config)(num_envs=16, num_steps=64, hidden=16), steps=r.steps)
+             for a, r in recipes.RECIPES.items() if a in ("ippo", "mappo")}
+
+    class Interrupted(Exception):
+        pass
+
+    def stop_in_second_cell(update):
+        if any("cell 2/2" in line for line in logs) and update == 1:
+            raise Interrupted
+
+    kwargs["recipes"] = small
+    with pytest.raises(Interrupted):
+        run_benchmark(out, on_chunk=stop_in_second_cell, **kwargs)
+    first = json.loads((out / "results.json").read_text())
+    assert finished_cells(first) == {("simple_navigation", "ippo")}
+    logs.clear()
+    results = run_benchmark(out, **kwargs)
+    assert "1 already in" in logs[0] and not any("cell 1/2:" in line for line in logs)
+    assert any(line.startswith("resuming from update 1") for line in logs)
+    assert results[ENV_NAME]["simple_navigation"]["ippo"] == first[ENV_NAME]["simple_navigation"]["ippo"]
+    runs = results[ENV_NAME]["simple_navigation"]["mappo"]
+    assert sorted(runs) == ["run_0", "run_1"]
+    steps = sorted(k for k in runs["run_0"] if k.startswith("step_"))
+    assert len(steps) == 3 and [runs["run_0"][k]["step_count"] for k in sorted(steps)] == [1024, 2048, 3072]
+    assert len(runs["run_1"]["step_2"]["reward"]) == 4 and len(runs["run_1"][ABSOLUTE]["reward"]) == 8
+    assert set(runs["run_0"][ABSOLUTE]) >= {"reward", "steps", "collisions", "out_of_bounds", "best_test_return",
+                                            "train_seconds", "wall_seconds", "env_steps"}
+    written = report.write_report(out, reps=20)
+    assert "| simple_navigation | mappo | 2 |" in written[0].read_text()
+    logs.clear()
+    run_benchmark(out, **kwargs)                       # all done: nothing trains
+    assert logs == [f"benchmark: 2 cell(s) for this process, 2 already in {out / 'results.json'}"]
+
+
+def test_benchmark_rejects_bad_settings(tmp_path):
+    with pytest.raises(ValueError, match="seeds must be an integer >= 1, got 0"):
+        run_benchmark(tmp_path, seeds=0)
+    with pytest.raises(ValueError, match="total_steps must be >= 1"):
+        run_benchmark(tmp_path, total_steps=-5)
+    assert benchmark.results_name(1, 3) == "results-p1.json" and benchmark.results_name() == "results.json"

@@ -1,0 +1,92 @@
+"""Training recipes: one typed recipe per algorithm on every scenario; ``paper`` holds the settings of
+MARBLER's EPyMARL model files (spec E.2)."""
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from algorithms.driver import ALGORITHMS, build_config
+from algorithms.recipes import PAPER, RECIPE_NAMES, RECIPES, Recipe, recipe, settings
+
+SCENARIOS = ("predator_capture_prey", "warehouse", "material_transport", "arctic_transport")
+
+
+def paper(algo: str):
+    env, hp, steps = settings("paper", "predator_capture_prey", algo)
+    return env, build_config(algo, hp), steps
+
+
+def test_every_algorithm_has_one_typed_recipe_used_on_every_scenario():
+    assert set(RECIPES) == set(ALGORITHMS) == set(PAPER)
+    for algo, r in RECIPES.items():
+        assert isinstance(r, Recipe) and r.algo == algo
+        assert isinstance(r.config, ALGORITHMS[algo][0])          # the algorithm's own typed config
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            r.config.lr = 1.0
+        hps = {s: settings("recipe", s, algo)[1] for s in SCENARIOS}
+        assert all(hp == hps["warehouse"] for hp in hps.values())  # per scenario: the step budget only
+        assert not r.why                                           # no scenario-specific entry
+        assert build_config(algo, hps["warehouse"]) == dataclasses.replace(r.config)
+        assert settings("recipe", "warehouse", algo)[0] == {"control_period": 15}
+
+
+def test_recipes_keep_the_papers_algorithm_definitions():
+    """VDN, QMIX and MAPPO share one network with agent IDs; QMIX_NS has one per robot."""
+    for algo in ("vdn", "qmix", "mappo", "ippo"):
+        assert RECIPES[algo].config.shared and RECIPES[algo].config.agent_ids, algo
+    assert not RECIPES["qmix_ns"].config.shared and not RECIPES["qmix_ns"].config.agent_ids
+    assert RECIPES["mappo"].config.critic_input == "global" and RECIPES["ippo"].config.critic_input == "local"
+    value = [RECIPES[a].config for a in ("vdn", "qmix", "qmix_ns")]
+    for cfg in value:   # PQN-style: the buffer holds the update's own episodes, each used 4 times
+        assert cfg.buffer_size == cfg.num_envs == 256 and cfg.train_steps * cfg.batch_size == 4 * cfg.num_envs
+        assert cfg.targets_per_update and cfg.lr_decay and cfg.td_lambda > 0
+
+
+def test_paper_value_based_settings_are_epymarls_model_files():
+    env, vdn, steps = paper("vdn")
+    assert env == {"control_period": 15} and steps == 5_000_000
+    assert (vdn.hidden, vdn.lr, vdn.target_update_interval, vdn.tau) == (128, 3e-4, 200, 1.0)
+    _, qmix, _ = paper("qmix")
+    assert (qmix.hidden, qmix.lr, qmix.tau, qmix.mixer_embed, qmix.hypernet_hidden) == (128, 1e-4, 0.01, 32, 64)
+    _, qmix_ns, _ = paper("qmix_ns")
+    assert (qmix_ns.hidden, qmix_ns.lr, qmix_ns.target_update_interval, qmix_ns.shared) == (64, 5e-4, 200, False)
+    for cfg in (vdn, qmix, qmix_ns):
+        # EPyMARL: buffer 5000 episodes, batch 32, one gradient step per collected episode, epsilon 1 -> 0.05
+        # over 50k env steps, gamma 0.99, clip 10, double Q, raw rewards, and Adam (its QLearner builds
+        # torch.optim.Adam; the model files' optim_alpha/optim_eps are unused RMSprop leftovers)
+        assert (cfg.buffer_size, cfg.batch_size, cfg.train_steps, cfg.num_envs) == (5000, 32, 8, 8)
+        assert (cfg.eps_start, cfg.eps_finish, cfg.eps_decay_steps) == (1.0, 0.05, 50_000)
+        assert (cfg.gamma, cfg.max_grad_norm, cfg.double_q, cfg.reward_norm) == (0.99, 10.0, True, "none")
+        assert cfg.optimizer == "adam" and cfg.recurrent and cfg.cell == "gru" and cfg.td_lambda == 0.0
+    assert vdn.agent_ids and qmix.agent_ids      # obs_agent_id: True for the shared models
+
+
+def test_paper_mappo_none_and_unknown_names():
+    _, mappo, steps = paper("mappo")
+    assert (mappo.hidden, mappo.lr, mappo.update_epochs, mappo.clip_eps, mappo.ent_coef) == (128, 2e-4, 4, 0.2, 0.01)
+    assert steps == 25_000_000
+    assert settings("none", "warehouse", "vdn") == ({}, {}, 1_000_000)
+    assert set(RECIPE_NAMES) == {"recipe", "paper", "none"}
+    with pytest.raises(ValueError, match=r"unknown preset 'fast'; available: \['recipe', 'paper', 'none'\]"):
+        recipe("vdn", "fast")
+    with pytest.raises(ValueError, match="unknown algorithm 'dqn'"):
+        recipe("dqn")
+
+
+def test_an_alias_gets_the_budget_of_its_scenario(tmp_path):
+    """``--scenario simple`` / ``pcp`` are the same scenario as their canonical names: same budget, and the
+    run folder stores the canonical name (the paper column of ``evaluate`` finds it)."""
+    import json
+
+    from marbler_jax.cli import main
+
+    out = tmp_path / "run"
+    from marbler_jax.registry import canonical_name
+
+    assert canonical_name("pcp") == "predator_capture_prey" and canonical_name("simple") == "simple_navigation"
+    assert RECIPES["ippo"].total_steps(canonical_name("simple")) == RECIPES["ippo"].total_steps("simple_navigation")
+    assert RECIPES["ippo"].total_steps("simple_navigation") < RECIPES["ippo"].total_steps("predator_capture_prey")
+    assert main(["train", "--scenario", "pcp", "--algo", "ippo", "--total-steps", "4096", "--out", str(out),
+          "--no-progress", "--hp", "num_envs=16", "--hp", "hidden=8", "--test-episodes", "2", "--eval-episodes", "0"]) == 0
+    assert json.loads((out / "config.json").read_text())["scenario"] == "predator_capture_prey"
