@@ -188,26 +188,70 @@ def _train(args) -> int:
 
 
 def _benchmark(args) -> int:
-    process_id, processes = args.process_id, args.num_processes
-    if not args.coordinator and (process_id, processes) != (0, 1):
-        raise ValueError("--num-processes / --process-id need --coordinator HOST:PORT")
+    shard = _parse_shard(args.shard)
+    if args.coordinator:
+        if args.shard:
+            raise ValueError("--coordinator assigns the shard itself; drop --shard")
+        return _benchmark_distributed(args)
     if args.learner_devices > 1:
         from algorithms.data_parallel import use_cpu_devices
 
         use_cpu_devices(args.learner_devices)        # before JAX first runs
-    if args.coordinator:
-        import jax
-
-        jax.distributed.initialize(args.coordinator, num_processes=processes, process_id=process_id)
-        process_id, processes = jax.process_index(), jax.process_count()
     from algorithms.benchmark import run_benchmark
 
     total = int(float(args.total_steps)) if args.total_steps else None
     run_benchmark(args.out, args.algos, args.scenarios, args.seeds, total, args.eval_points, args.test_episodes,
                   args.absolute_factor, args.learner_devices, args.seed, progress=not args.no_progress,
-                  process_index=process_id, process_count=processes)
+                  process_index=shard[0], process_count=shard[1])
     print(f"results: {args.out}; tables and curves: marbler-jax report {args.out}")
     return 0
+
+
+def _parse_shard(text: str | None) -> tuple[int, int]:
+    """``"I/N"`` -> ``(I, N)`` with ``0 <= I < N``; None -> ``(0, 1)``."""
+    if not text:
+        return 0, 1
+    try:
+        index, count = (int(x) for x in text.split("/"))
+    except ValueError:
+        raise ValueError(f"--shard must be I/N (e.g. 0/2), got {text!r}") from None
+    if not 0 <= index < count:
+        raise ValueError(f"--shard I/N needs 0 <= I < N, got {text!r}")
+    return index, count
+
+
+def _benchmark_distributed(args) -> int:
+    """Join JAX's distributed runtime (``--coordinator HOST:PORT`` with ``--num-processes`` and
+    ``--process-id``, or ``auto`` where JAX detects the cluster, e.g. under SLURM) to learn this process's
+    shard, train it in a child process of its own (its checkpoints stay single-process), then wait for
+    every process at a barrier."""
+    import subprocess
+
+    import jax
+
+    if args.coordinator == "auto":
+        jax.distributed.initialize()
+    else:
+        jax.distributed.initialize(args.coordinator, num_processes=args.num_processes, process_id=args.process_id)
+    index, count = jax.process_index(), jax.process_count()
+    argv = [a for a in args.argv]
+    child = []
+    skip = {"--coordinator", "--num-processes", "--process-id"}
+    i = 0
+    while i < len(argv):
+        if argv[i] in skip:
+            i += 2
+            continue
+        if argv[i].split("=", 1)[0] in skip:
+            i += 1
+            continue
+        child.append(argv[i])
+        i += 1
+    code = subprocess.run([sys.executable, "-m", "marbler_jax", *child, "--shard", f"{index}/{count}"]).returncode
+    from jax.experimental import multihost_utils
+
+    multihost_utils.sync_global_devices("marbler-jax benchmark done")
+    return code
 
 
 def _report(args) -> int:
@@ -444,11 +488,13 @@ def build_parser() -> argparse.ArgumentParser:
     bm.add_argument("--learner-devices", type=int, default=1,
                     help="CPU devices each value-based gradient step is split over (2 on a 2-core CPU)")
     bm.add_argument("--seed", type=int, default=0, help="base PRNG seed of every cell")
+    bm.add_argument("--shard", default=None, metavar="I/N",
+                    help="train only every N-th cell starting at cell I and write results-pI.json (report merges)")
     bm.add_argument("--coordinator", default=None, metavar="HOST:PORT",
-                    help="JAX distributed coordinator: with --num-processes and --process-id, each process takes "
-                         "its share of the cells and writes results-p<id>.json")
-    bm.add_argument("--num-processes", type=int, default=1)
-    bm.add_argument("--process-id", type=int, default=0)
+                    help="join JAX's distributed runtime (with --num-processes and --process-id; 'auto' where JAX "
+                         "detects the cluster): each process trains its shard of the cells")
+    bm.add_argument("--num-processes", type=int, default=None)
+    bm.add_argument("--process-id", type=int, default=None)
     bm.add_argument("--no-progress", action="store_true")
     bm.set_defaults(func=_benchmark)
     rp = sub.add_parser("report", help="tables (IQM, 95%% CI, best seed, paper), curves and probability of "

@@ -135,3 +135,35 @@ def test_benchmark_rejects_bad_settings(tmp_path):
     with pytest.raises(ValueError, match="total_steps must be >= 1"):
         run_benchmark(tmp_path, total_steps=-5)
     assert benchmark.results_name(1, 3) == "results-p1.json" and benchmark.results_name() == "results.json"
+
+
+@pytest.mark.slow
+def test_two_processes_share_the_grid_through_jax_distributed(tmp_path):
+    """Two local processes join JAX's distributed runtime; each trains its own cell and writes its own
+    results file, and ``report`` merges them (~2 minutes on 2 cores)."""
+    import socket
+    import subprocess
+    import sys
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    out = tmp_path / "bench"
+    procs = [subprocess.Popen([sys.executable, "-m", "marbler_jax", "benchmark", "--algos", "ippo", "mappo",
+                               "--scenarios", "simple", "--seeds", "1", "--total-steps", "2048", "--eval-points", "2",
+                               "--test-episodes", "2", "--absolute-factor", "2", "--out", str(out), "--no-progress",
+                               "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2", "--process-id", str(i)])
+             for i in range(2)]
+    assert [p.wait(timeout=900) for p in procs] == [0, 0]
+    assert sorted(p.name for p in out.glob("results*.json")) == ["results-p0.json", "results-p1.json"]
+    assert finished_cells(load_results(out)) == {("simple_navigation", "ippo"), ("simple_navigation", "mappo")}
+    assert "| simple_navigation | mappo | 1 |" in report.write_report(out, reps=20)[0].read_text()
+
+
+def test_shard_flag_is_checked():
+    from marbler_jax.cli import _parse_shard
+
+    assert _parse_shard("1/3") == (1, 3) and _parse_shard(None) == (0, 1)
+    for bad in ("3/3", "a/b", "1"):
+        with pytest.raises(ValueError, match="--shard"):
+            _parse_shard(bad)
