@@ -11,12 +11,13 @@ steps; the probability of improvement ``P(X > Y)`` compares two algorithms' runs
 """
 from __future__ import annotations
 
+import os
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-from algorithms.benchmark import ABSOLUTE, ENV_NAME, load_results
+from algorithms.benchmark import ABSOLUTE, ENV_NAME, PAPER_ALGOS, PAPER_SCENARIOS, load_results
 from algorithms.driver import atomic_write
 from algorithms.evaluate import PAPER
 
@@ -200,6 +201,9 @@ def report_markdown(results: dict, reps: int = 2000, image_prefix: str = "") -> 
         table = metric_table(results, metric, reps)
         if table:
             parts += [table, ""]
+    missing = [f"{a} on {s}" for s in PAPER_SCENARIOS for a in PAPER_ALGOS if a not in tasks.get(s, {})]
+    if missing:
+        parts += ["### Cells not in the results yet", "", ", ".join(missing) + ".", ""]
     parts.append("### Sample efficiency and probability of improvement\n")
     for scenario in _ordered(tasks, SCENARIO_ORDER):
         parts += [f"#### {scenario}", "", f"![{scenario}]({image_prefix}curves_{scenario}.png)", ""]
@@ -208,8 +212,27 @@ def report_markdown(results: dict, reps: int = 2000, image_prefix: str = "") -> 
     return "\n".join(parts)
 
 
-def write_report(folder: str | Path, out: str | Path | None = None, reps: int = 2000) -> list[Path]:
-    """``report.md`` and ``curves_<scenario>.png`` of the benchmark in ``folder`` (into ``out``)."""
+RESULTS_HEAD = """# Results
+
+MARBLER's Table II (simulation) reproduced with `marbler-jax benchmark`: every cell trained with its
+algorithm's recipe (`algorithms/recipes.py`), five seeds in one program, each seed tested greedily at 20
+points of training and then its best checkpoint evaluated over fresh episodes. This file is generated:
+
+```bash
+marbler-jax benchmark --learner-devices 2 --out results/marbler-table2     # resumable; cells are independent
+marbler-jax report results/marbler-table2 --results-md RESULTS.md
+```
+
+The results file (`results/marbler-table2/results*.json`, marl-eval's layout) holds every test episode of
+every seed; the wall time of each cell is in its runs' `absolute_metrics`.
+
+"""
+
+
+def write_report(folder: str | Path, out: str | Path | None = None, reps: int = 2000,
+                 results_md: str | Path | None = None) -> list[Path]:
+    """``report.md`` and ``curves_<scenario>.png`` of the benchmark in ``folder`` (into ``out``), and with
+    ``results_md`` the same report as the project's results page (image links relative to it)."""
     if not isinstance(reps, int) or reps < 10:
         raise ValueError(f"reps must be an integer >= 10, got {reps!r}")
     folder = Path(folder)
@@ -225,7 +248,13 @@ def write_report(folder: str | Path, out: str | Path | None = None, reps: int = 
         written.append(png)
     report = out / "report.md"
     atomic_write(report, "## MARBLER benchmark\n\n" + report_markdown(results, reps))
-    return [report] + written
+    written.insert(0, report)
+    if results_md:
+        results_md = Path(results_md)
+        prefix = Path(os.path.relpath(out.resolve(), results_md.resolve().parent)).as_posix() + "/"
+        atomic_write(results_md, RESULTS_HEAD + report_markdown(results, reps, image_prefix=prefix))
+        written.append(results_md)
+    return written
 
 
 __all__ = ["write_report", "report_markdown", "iqm_ci", "probability_of_improvement", "run_scores",

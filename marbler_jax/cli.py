@@ -257,7 +257,7 @@ def _benchmark_distributed(args) -> int:
 def _report(args) -> int:
     from algorithms.report import write_report
 
-    written = write_report(args.results, args.out, reps=args.reps)
+    written = write_report(args.results, args.out, reps=args.reps, results_md=args.results_md)
     print("\n".join(f"written: {p}" for p in written))
     return 0
 
@@ -502,6 +502,8 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("results", help="benchmark folder (its results*.json are merged)")
     rp.add_argument("--out", default=None, help="report folder (default: the results folder)")
     rp.add_argument("--reps", type=int, default=2000, help="bootstrap resamples")
+    rp.add_argument("--results-md", default=None, metavar="FILE",
+                    help="also write the report as a results page (the project's RESULTS.md)")
     rp.set_defaults(func=_report)
     qs = sub.add_parser("quickstart", help="the main job: train, evaluate, plot and render (a few minutes)")
     qs.add_argument("--out", default="runs/quickstart")

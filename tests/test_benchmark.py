@@ -76,9 +76,15 @@ def test_report_renders_tables_curves_and_improvement(tmp_path):
     results = {ENV_NAME: {"predator_capture_prey": {"vdn": _runs([[33.0, 34.0], [30.0, 31.0]]),
                                                     "qmix": _runs([[20.0, 21.0], [25.0, 26.0]])}}}
     (tmp_path / "results.json").write_text(json.dumps(results))
-    written = report.write_report(tmp_path, reps=50)
+    docs = tmp_path / "docs"
+    docs.mkdir()
+    written = report.write_report(tmp_path, reps=50, results_md=docs / "RESULTS.md")
     text = (tmp_path / "report.md").read_text()
-    assert [p.name for p in written] == ["report.md", "curves_predator_capture_prey.png"]
+    assert [p.name for p in written] == ["report.md", "curves_predator_capture_prey.png", "RESULTS.md"]
+    page = (docs / "RESULTS.md").read_text()
+    assert "marbler-jax report results/marbler-table2 --results-md RESULTS.md" in page
+    assert "](../curves_predator_capture_prey.png)" in page             # relative to the page
+    assert "qmix_ns on predator_capture_prey" in page.split("Cells not in the results yet")[1]
     assert "| predator_capture_prey | vdn | 2 | 0.0002M | 32.00 [" in text
     assert "| 33.50 ± 0.50 | 33.25 ± 0.46 | yes |" in text       # best seed run_0 against the paper
     assert "| qmix | 0.00 [0.00, 0.00] | — |" in text              # P(qmix > vdn)
