@@ -37,6 +37,14 @@ ALGORITHMS = {
     "qmix": (qmix.QMIXConfig, qmix.make_train, qmix.greedy_policy),
     "qmix_ns": (qmix.QMIXNSConfig, qmix.make_train, qmix.greedy_policy),
 }
+# one line each, for ``marbler-jax list``
+ALGORITHM_SUMMARIES = {
+    "ippo": "independent PPO: a shared actor-critic, the critic on each robot's own observation",
+    "mappo": "PPO with a centralised critic on the global state (every robot's observation)",
+    "vdn": "value decomposition: the team value is the sum of the robots' Q-values (one shared network)",
+    "qmix": "a monotonic hypernetwork mixer of the robots' Q-values on the global state (one shared network)",
+    "qmix_ns": "QMIX with one network per robot (no parameter sharing)",
+}
 
 
 def atomic_write(path: Path, data: bytes | str) -> None:

@@ -140,17 +140,27 @@ def _rollout(args) -> int:
 
 def _list(args) -> int:
     import dataclasses
+    import importlib
 
     import marbler_jax
+    from algorithms.driver import ALGORITHM_SUMMARIES
     from marbler_jax.registry import scenario_class
 
+    def first_line(text: str | None) -> str:
+        return text.strip().splitlines()[0] if text else ""
+
+    print("scenarios:")
     for name in marbler_jax.registered():
         env = marbler_jax.make(name)
-        print(f"{name}: {env.num_agents} robots, obs_dim {env.obs_dim}, {env.num_actions} actions, "
-              f"{env.max_steps} steps per episode")
+        print(f"  {name}: {env.num_agents} robots, obs_dim {env.obs_dim}, {env.num_actions} actions, "
+              f"{env.max_steps} steps per episode -- "
+              f"{first_line(importlib.import_module(scenario_class(name).__module__).__doc__)}")
         if args.verbose:
             for field in dataclasses.fields(scenario_class(name).Config):
-                print(f"    {field.name} = {getattr(env.config, field.name)!r}")
+                print(f"      {field.name} = {getattr(env.config, field.name)!r}")
+    print("algorithms (marbler-jax train --algo):")
+    for algo, summary in ALGORITHM_SUMMARIES.items():
+        print(f"  {algo}: {summary}")
     return 0
 
 
@@ -386,13 +396,25 @@ def _bench(args) -> int:
     return 0
 
 
+class _DefaultsFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """``--help`` with each option's default, except where there is none to show."""
+
+    def _get_help_string(self, action):
+        if action.default in (None, False) or action.default is argparse.SUPPRESS:
+            return action.help
+        return super()._get_help_string(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from algorithms.benchmark import PAPER_ALGOS, PAPER_SCENARIOS
     from algorithms.driver import ALGORITHMS
     from algorithms.recipes import RECIPE_NAMES
     from marbler_jax import cbf, physics
 
+    from marbler_jax import __version__
+
     parser = argparse.ArgumentParser(prog="marbler-jax", description="Batched Robotarium simulation and MARL in JAX.")
+    parser.add_argument("--version", action="version", version=f"marbler-jax {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="robots swap places under a barrier certificate (batched)")
     demo.add_argument("--robots", type=int, default=12, help="robots per team (1-50)")
@@ -512,6 +534,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--out", default="bench_out/cbf.json")
     bench.add_argument("--quick", action="store_true")
     bench.set_defaults(func=_bench)
+    for command in sub.choices.values():           # every option's default in its --help
+        command.formatter_class = _DefaultsFormatter
     return parser
 
 

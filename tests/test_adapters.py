@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-import marbler_jax  # noqa: F401  (registers the gymnasium ids)
+import marbler_jax.adapters  # noqa: F401  (registers the gymnasium ids)
 from marbler_jax.adapters import GYM_IDS, GymnasiumEnv
 
 
@@ -57,3 +57,17 @@ def test_pettingzoo_parallel_api():
     assert all(isinstance(r, float) for r in rewards.values())
     assert env.state().shape == (4 * 10,)
     jax.clear_caches()
+
+
+def test_importing_the_package_has_no_gymnasium_side_effect_and_the_numpy_policy_needs_no_jax():
+    """``import marbler_jax`` defines things only (the adapters register the gymnasium ids), and
+    ``marbler_jax.numpy_policy`` -- what the Robotarium bundle runs -- imports with JAX unimportable."""
+    import subprocess
+    import sys
+
+    code = ("import sys, marbler_jax; assert 'gymnasium' not in sys.modules, 'gymnasium imported'; "
+            "import marbler_jax.adapters, gymnasium; assert 'marbler_jax/Warehouse-v0' in gymnasium.registry")
+    subprocess.run([sys.executable, "-c", code], check=True)
+    code = ("import sys; sys.modules['jax'] = None; sys.modules['flax'] = None; "
+            "from marbler_jax.numpy_policy import load_policy; assert sys.modules['jax'] is None")
+    subprocess.run([sys.executable, "-c", code], check=True)

@@ -134,3 +134,18 @@ def test_train_vdn_then_evaluate_best_checkpoint(tmp_path, capsys):
     assert 2 <= len(frames) <= 82 and frames[0].shape[1] > 1.5 * frames[0].shape[0]
     assert main(["render", str(out), "--out", str(gif), "--seed-index", "5", "--no-progress"]) == 2
     assert "out of range" in capsys.readouterr().err
+
+
+def test_version_list_and_help_defaults(capsys):
+    from marbler_jax import __version__
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["--version"])
+    assert exit_.value.code == 0 and capsys.readouterr().out.strip() == f"marbler-jax {__version__}"
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    assert "predator_capture_prey: 4 robots" in out and "Predator Capture Prey (MARBLER" in out
+    assert "qmix_ns: QMIX with one network per robot" in out
+    with pytest.raises(SystemExit):
+        main(["benchmark", "--help"])
+    assert "(default: 5)" in capsys.readouterr().out
