@@ -11,7 +11,7 @@ results file in marl-eval's layout::
         "step_<i>": {"step_count": env_steps, metric: [per-episode values]},
         "absolute_metrics": {metric: [per-episode values], "best_test_return": [x],
                              "env_steps": [per seed], "train_seconds": [updates' time, all seeds],
-                             "wall_seconds": [the cell's wall time in its last session]}}}}}}
+                             "wall_seconds": [the cell's wall time in its last invocation]}}}}}}
 
 with the metrics of :data:`marbler_jax.rollout.EPISODE_METRICS` and the scenario's own (``prey_left``,
 ``material_left``, ...). The file is rewritten atomically after every cell. A rerun skips the cells the
@@ -78,7 +78,7 @@ def grid(algos, scenarios, process_index: int = 0, process_count: int = 1) -> li
 
 def training_seconds(metrics: list[dict], seeds: int) -> float:
     """Seconds the run's updates took (from each ``metrics.jsonl`` line's env-steps/s; no compilation, tests
-    or checkpoints), summed over every session of a resumed run."""
+    or checkpoints), summed over every invocation of a resumed run."""
     steps = [m["env_steps"] for m in metrics]
     per_update = [b - a for a, b in zip([0] + steps[:-1], steps)]
     return float(sum(seeds * n / m["sps"] for n, m in zip(per_update, metrics)))

@@ -314,7 +314,7 @@ def _json_floats(values) -> list:
 def seed_best_scores(lines: list[str], seeds: int, tested: bool) -> np.ndarray:
     """Each seed's best chunk score ``[seeds]`` in ``metrics.jsonl`` lines (``-inf`` before any): the
     greedy test returns (``test_returns``) or, for runs without tests, the chunks' mean training
-    returns (``chunk_returns``). Lines written before per-seed scores were logged (2026-11-24) count
+    returns (``chunk_returns``). Lines without per-seed scores (older run folders) count
     their test mean for every seed; an untested run from before then starts its best anew on resume."""
     best = np.full(seeds, -np.inf)
     for line in lines:

@@ -109,8 +109,8 @@ def best_seed(run) -> tuple[int, float]:
     tested = bool(config.get("test_episodes", 0))
     per_seed_key = SEED_SCORE_KEY[tested]
     if config["seeds"] > 1 and not any(per_seed_key in json.loads(line) for line in lines):
-        raise ValueError(f"{run} logs no per-seed scores ({per_seed_key!r} in metrics.jsonl: runs trained "
-                         "before 2026-11-24 lack them); evaluate all seeds instead")
+        raise ValueError(f"{run} logs no per-seed scores ({per_seed_key!r} in metrics.jsonl; runs from earlier "
+                         "versions lack them); evaluate all seeds instead")
     scores = seed_best_scores(lines, config["seeds"], tested)
     if not np.isfinite(scores).any():
         raise ValueError(f"{run} has no scored chunk yet (metrics.jsonl); train first")

@@ -5,9 +5,9 @@ server). A policy folder, written by ``marbler-jax export`` (:mod:`algorithms.ex
 
 * ``policy_spec.npy`` -- a 0-d unicode array holding JSON: ``format``, ``kind`` (``"q_agent"`` for
   VDN/QMIX/QMIX_NS, ``"actor"`` for IPPO/MAPPO), ``recurrent``, ``cell`` (``"gru"``, ``"mingru"``
-  or ``"none"``; absent in older folders, where it is ``"gru"`` if ``recurrent``), ``shared``, ``agent_ids``,
-  ``layer_norm`` (Q-agents; absent in older folders, where it is false), ``last_action`` (Q-agents
-  that also see the one-hot of their previous action; absent in older folders: false), ``num_agents``, ``obs_dim``,
+  or ``"none"``; absent from specs written before it existed, where it is ``"gru"`` if ``recurrent``), ``shared``, ``agent_ids``,
+  ``layer_norm`` (Q-agents; absent from earlier specs: false), ``last_action`` (Q-agents
+  that also see the one-hot of their previous action; absent from earlier specs: false), ``num_agents``, ``obs_dim``,
   ``num_actions``, ``hidden``, ``activation``, ``layers`` (actor MLP layer names in order) and
   ``tensors`` (parameter name -> file name).
 * one ``.npy`` per parameter tensor (``float32``; with a leading agent axis when not shared).

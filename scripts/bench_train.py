@@ -4,7 +4,7 @@ For every (algorithm, preset) it builds the trainer exactly as ``marbler-jax tra
 one chunk of ``--updates`` updates; then it runs every configuration's chunk ``--repeats`` times from
 the same runner state, the configurations taking turns (round-robin, the order rotated each round), and
 reports the best and the median wall time (``block_until_ready``; compile time separately). Taking turns
-in one process matters on a shared VM: the same program timed in two processes can differ by far more
+in one process matters on a shared machine: the same program timed in two processes can differ by far more
 than two programs timed alternately in one (BENCHMARKS.md). Learning starts at update 0
 (``learning_starts=0``) so that value-based runs pay for their gradient steps. Writes JSON and prints a
 Markdown table.
