@@ -14,8 +14,10 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import math
 import os
 import time
+import typing
 import warnings
 from pathlib import Path
 
@@ -60,6 +62,8 @@ def has_setting(algo: str, name: str) -> bool:
 
 
 def build_config(algo: str, overrides: dict):
+    """``algo``'s config with ``overrides``, every value checked for type, finiteness and range (the
+    error names the setting, the value and what is allowed)."""
     if algo not in ALGORITHMS:
         raise ValueError(f"unknown algorithm {algo!r}; available: {sorted(ALGORITHMS)}")
     cls = ALGORITHMS[algo][0]
@@ -67,7 +71,28 @@ def build_config(algo: str, overrides: dict):
     unknown = sorted(set(overrides) - names)
     if unknown:
         raise ValueError(f"unknown {algo} setting(s) {unknown}; valid: {sorted(names)}")
-    return cls(**overrides)
+    hints = typing.get_type_hints(cls)
+    for name, value in overrides.items():
+        _check_type(algo, name, value, hints[name])
+    cfg = cls(**overrides)
+    cfg.validate()
+    return cfg
+
+
+def _check_type(algo: str, name: str, value, expected) -> None:
+    if expected is bool:
+        ok, allowed = isinstance(value, bool), "true or false"
+    elif expected is int:
+        ok, allowed = isinstance(value, int) and not isinstance(value, bool), "an integer"
+    elif expected is float:
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+        allowed = "a finite number"
+    elif expected is str:
+        ok, allowed = isinstance(value, str), "a string"
+    else:
+        return
+    if not ok:
+        raise ValueError(f"{algo} setting {name}={value!r} is not valid: expected {allowed}")
 
 
 def evaluate(env, policy, episodes: int, key) -> dict:
@@ -145,7 +170,12 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     if eval_episodes < 0:
         raise ValueError(f"eval_episodes must be >= 0 (0 = no final evaluation), got {eval_episodes}")
     _, make_train, greedy = ALGORITHMS[algo]
+    if checkpoint_every is not None and (isinstance(checkpoint_every, bool) or not isinstance(checkpoint_every, int)
+                                         or checkpoint_every < 1):
+        raise ValueError(f"checkpoint_every must be an integer >= 1 (updates per chunk), got {checkpoint_every!r}")
     out = Path(out).absolute()
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} is a file; give a folder for the run")
     out.mkdir(parents=True, exist_ok=True)
     config = dict(scenario=scenario, algo=algo, seeds=seeds, seed=seed, env=dataclasses.asdict(env.config),
                   algorithm=dataclasses.asdict(cfg), test_episodes=test_episodes)

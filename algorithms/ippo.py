@@ -58,6 +58,16 @@ class IPPOConfig:
         for name in ("total_timesteps", "num_envs", "num_steps", "update_epochs", "num_minibatches", "hidden", "layers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("lr", "clip_eps", "max_grad_norm"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        for name in ("ent_coef", "vf_coef"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if not 0.0 < self.gamma <= 1.0:
+            raise ValueError(f"gamma must be in (0, 1], got {self.gamma}")
+        if not 0.0 <= self.gae_lambda <= 1.0:
+            raise ValueError(f"gae_lambda must be in [0, 1], got {self.gae_lambda}")
         if self.critic_input not in ("local", "global"):
             raise ValueError(f"critic_input must be 'local' or 'global', got {self.critic_input!r}")
         if (self.num_envs * self.num_steps) % self.num_minibatches:
