@@ -1,7 +1,7 @@
 """``marbler-jax benchmark``: MARBLER's Table II grid trained with the recipes, several seeds per cell.
 
 Each cell (scenario x algorithm) trains its seeds in one program (vmapped) with the algorithm's recipe
-(:mod:`algorithms.recipes`) into ``OUT/runs/<scenario>/<algo>``, tests every seed greedily at
+(:mod:`marbler_jax_rl.recipes`) into ``OUT/runs/<scenario>/<algo>``, tests every seed greedily at
 ``eval_points`` evenly spaced points of training (``test_episodes`` episodes each, the same initial
 states at every point) and ends with the *absolute metric*: each seed's best checkpoint (by test
 return) over ``absolute_factor x test_episodes`` fresh episodes. The cell is then appended to the
@@ -30,9 +30,9 @@ import jax
 import numpy as np
 
 import marbler_jax
-from algorithms.driver import (ALGORITHMS, TESTS_FILE, atomic_write, build_config, has_setting, seed_best_scores,
+from .driver import (ALGORITHMS, TESTS_FILE, atomic_write, build_config, has_setting, seed_best_scores,
                                train)
-from algorithms.recipes import recipe
+from .recipes import recipe
 from marbler_jax.registry import canonical_name
 
 ENV_NAME = "marbler"
@@ -86,7 +86,7 @@ def training_seconds(metrics: list[dict], seeds: int) -> float:
 
 def cell_runs(run: Path, env, greedy_of_params, seeds: int, absolute_episodes: int, key) -> dict:
     """The marl-eval ``{"run_<k>": ...}`` entries of a trained cell's run folder ``run``."""
-    from algorithms.evaluate import greedy_episodes, restore_params
+    from .evaluate import greedy_episodes, restore_params
 
     tests = [json.loads(line) for line in (run / TESTS_FILE).read_text().splitlines() if line.strip()]
     metrics = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines() if line.strip()]
@@ -110,7 +110,7 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
                   absolute_factor: int = 10, learner_devices: int = 1, seed: int = 0, progress: bool = True,
                   process_index: int = 0, process_count: int = 1, recipes=None, log=print, on_chunk=None) -> dict:
     """Train and evaluate this process's share of the grid into ``out``; returns its results dict.
-    ``recipes``: ``{algo: Recipe}`` instead of :data:`algorithms.recipes.RECIPES`."""
+    ``recipes``: ``{algo: Recipe}`` instead of :data:`marbler_jax_rl.recipes.RECIPES`."""
     recipes = dict(recipes or {})
 
     def recipe_of(algo):

@@ -38,7 +38,7 @@ def _mesh(devices: int) -> Mesh:
     if len(available) < devices:
         raise ValueError(
             f"learner_devices={devices} needs {devices} devices but JAX has {len(available)} "
-            f"({available[0].platform}); on a CPU call algorithms.data_parallel.use_cpu_devices({devices}) "
+            f"({available[0].platform}); on a CPU call marbler_jax_rl.data_parallel.use_cpu_devices({devices}) "
             f"(or set jax.config 'jax_num_cpu_devices') before JAX first runs -- marbler-jax train does this")
     return Mesh(np.array(available[:devices]), (AXIS,))
 

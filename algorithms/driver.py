@@ -27,8 +27,8 @@ import numpy as np
 
 import marbler_jax
 from marbler_jax.registry import canonical_name
-from algorithms import ippo, mappo, qmix, vdn
-from algorithms.hang_guard import HangGuard, hang_message
+from . import ippo, mappo, qmix, vdn
+from .hang_guard import HangGuard, hang_message
 from marbler_jax.rollout import batched_rollout, episode_stats, first_episode_metrics, make_rollout
 
 # name -> (config class, make_train(env, cfg), greedy_policy(env, cfg, params))
@@ -134,7 +134,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     same result up to float rounding.
 
     If the process stays idle for ``hang_seconds`` inside a chunk (the jaxlib CPU hang, see
-    :mod:`algorithms.hang_guard`), ``on_hang(idle_seconds)`` runs on a watcher thread (default: a
+    :mod:`marbler_jax_rl.hang_guard`), ``on_hang(idle_seconds)`` runs on a watcher thread (default: a
     warning through ``log``; the CLI restarts itself with ``--resume``). ``hang_seconds=0`` turns
     the watcher off.
 
@@ -408,7 +408,7 @@ def tensorboard_writer(out: Path):
 def load_run(run: Path, seed_index: int = 0, checkpoint: str = "final"):
     """``(env, greedy policy)`` of seed ``seed_index`` of a run folder (``checkpoint``: ``"final"``
     parameters of a finished run or the ``"best"`` orbax checkpoint)."""
-    from algorithms.evaluate import restore_params
+    from .evaluate import restore_params
 
     config = json.loads((Path(run) / "config.json").read_text())
     env = marbler_jax.make(config["scenario"], **config["env"])

@@ -74,7 +74,7 @@ def summarize(values: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
 
 def restore_params(run: Path, checkpoint: str = "best"):
     """Seed-major parameters of a run: ``"best"`` (orbax ``best/``) or ``"final"`` (``params.npz``)."""
-    from algorithms.driver import load_params
+    from .driver import load_params
 
     run = Path(run)
     if checkpoint == "final":
@@ -100,7 +100,7 @@ def best_seed(run) -> tuple[int, float]:
     return for runs trained with ``test_episodes=0``), read from ``metrics.jsonl``: the model MARBLER's
     Table II reports ("we took the model that achieved the highest reward for each algorithm", of five
     seeds, and ran it for 100 episodes)."""
-    from algorithms.driver import SEED_SCORE_KEY, seed_best_scores
+    from .driver import SEED_SCORE_KEY, seed_best_scores
 
     run = Path(run)
     config = json.loads((run / "config.json").read_text())
@@ -122,7 +122,7 @@ def evaluate_run(run, episodes: int = 100, checkpoint: str = "best", seed: int =
                  seed_selection: str = "all") -> dict:
     """Table II metrics of every seed of run folder ``run`` and pooled over seeds, or with
     ``seed_selection="best"`` of the one seed :func:`best_seed` picks (the paper's protocol)."""
-    from algorithms.driver import ALGORITHMS
+    from .driver import ALGORITHMS
 
     if seed_selection not in ("all", "best"):
         raise ValueError(f"seed_selection must be 'all' or 'best', got {seed_selection!r}")

@@ -15,8 +15,8 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from algorithms.driver import flatten_params, select_seed
-from algorithms.networks import QAgent
+from .driver import flatten_params, select_seed
+from .networks import QAgent
 from marbler_jax.deploy.bundle import replace_folder, write_bundle
 from marbler_jax.numpy_policy import FORMAT, SPEC_FILE, NumpyPolicy
 
@@ -67,8 +67,8 @@ def export_policy(run, out, seed_index: int = 0, checkpoint: str = "best", bundl
     (:func:`marbler_jax.deploy.bundle.write_bundle`) with ``episodes`` start states drawn from
     ``bundle_seed``."""
     import marbler_jax
-    from algorithms.driver import ALGORITHMS
-    from algorithms.evaluate import restore_params
+    from .driver import ALGORITHMS
+    from .evaluate import restore_params
 
     run = Path(run)
     if not (run / "config.json").exists():

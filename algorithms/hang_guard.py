@@ -1,7 +1,7 @@
 """Detect a training call that stopped making progress, and say so (or restart).
 
 jaxlib 0.10.2's CPU runtime hung forever when vmapped network inits took batched QR decompositions
-(fixed in :func:`algorithms.networks.orthogonal`; see ``BENCHMARKS.md``). Should another such hang
+(fixed in :func:`marbler_jax_rl.networks.orthogonal`; see ``BENCHMARKS.md``). Should another such hang
 appear, a run should not idle for hours: a running XLA program keeps the CPU busy, so a call during
 which the process has used almost no CPU time for ``idle_seconds`` is hung. :class:`HangGuard`
 watches one call from a daemon thread and runs ``on_hang(idle_seconds)`` once when that happens;

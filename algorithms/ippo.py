@@ -1,7 +1,7 @@
 """IPPO: independent PPO, one actor-critic per agent on its own observation (decentralised critic).
 
 With ``critic_input="global"`` the critic sees the global state instead (every agent's observation
-concatenated, as MARBLER's EPyMARL runs did): that is MAPPO (:mod:`algorithms.mappo`).
+concatenated, as MARBLER's EPyMARL runs did): that is MAPPO (:mod:`marbler_jax_rl.mappo`).
 
 The whole training run is one jitted function ``train(key) -> (params, metrics)`` built by
 :func:`make_train`; ``jax.vmap(train)(keys)`` trains several seeds in one program (the driver's
@@ -24,8 +24,8 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from algorithms.common import episode_info, rollout_metrics
-from algorithms.networks import ActorCritic, apply_agents, init_agents, with_agent_ids
+from .common import episode_info, rollout_metrics
+from .networks import ActorCritic, apply_agents, init_agents, with_agent_ids
 
 
 @dataclasses.dataclass(frozen=True)

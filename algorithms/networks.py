@@ -25,7 +25,7 @@ from marbler_jax.numpy_policy import CELLS
 
 
 # PyTorch's ``nn.Linear`` default kernel init, U(-1/sqrt(fan_in), 1/sqrt(fan_in)): a third of flax's
-# default (lecun_normal) variance. EPyMARL's QMIX mixer is initialised this way (see algorithms.qmix).
+# default (lecun_normal) variance. EPyMARL's QMIX mixer is initialised this way (see marbler_jax_rl.qmix).
 TORCH_LINEAR_INIT = nn.initializers.variance_scaling(1 / 3, "fan_in", "uniform")
 
 

@@ -1,6 +1,6 @@
 """Value-decomposed deep Q-learning over episodes: the loop shared by VDN and QMIX.
 
-VDN (:mod:`algorithms.vdn`) and QMIX (:mod:`algorithms.qmix`) differ only in the *mixer* that turns
+VDN (:mod:`marbler_jax_rl.vdn`) and QMIX (:mod:`marbler_jax_rl.qmix`) differ only in the *mixer* that turns
 the agents' chosen Q-values ``[..., N]`` and the global state into the team value ``Q_tot``; this
 module is everything else, as in EPyMARL:
 
@@ -12,14 +12,14 @@ module is everything else, as in EPyMARL:
   update collects the first steps of a second, truncated episode after every early end, and all
   envs start in step), and each sequence stores the agents' hidden state at its first step, as the
   collecting network had it (R2D2's stored state). Agents act epsilon-greedily on
-  :class:`~algorithms.networks.QAgent` Q-values (GRU, minimal GRU or feed-forward; one parameter set
+  :class:`~marbler_jax_rl.networks.QAgent` Q-values (GRU, minimal GRU or feed-forward; one parameter set
   + agent-ID one-hot, or per-agent parameters). With ``last_action`` every agent also sees the
   one-hot of its own previous action (EPyMARL's ``obs_last_action``; zeros at an episode's first
   step), appended after the observation and before the agent ID. Epsilon falls linearly from ``eps_start`` to ``eps_finish``
   over ``eps_decay_steps`` env steps; with ``eps_spread = a > 0`` env ``i`` of ``n`` explores with
   ``epsilon ** (1 + a * i / (n - 1))`` instead (Ape-X's spread of exploration rates: env 0 at the
   schedule, the others ever closer to greedy).
-* **Replay.** The sequences go into an :mod:`algorithms.buffer` episode buffer of ``buffer_size``
+* **Replay.** The sequences go into an :mod:`marbler_jax_rl.buffer` episode buffer of ``buffer_size``
   sequences.
 * **Learning.** ``train_steps`` gradient steps per update, each on ``batch_size`` sampled
   sequences: the recurrent agents are unrolled from the sequence's stored hidden state (zero at an
@@ -30,7 +30,7 @@ module is everything else, as in EPyMARL:
   are copied every ``target_update_interval`` gradient steps (``tau = 1``) or Polyak-averaged with
   ``tau`` after every step. Learning starts once the buffer holds ``learning_starts`` env steps.
   ``learner_devices > 1`` splits each gradient step's batch over that many devices
-  (:mod:`algorithms.data_parallel`).
+  (:mod:`marbler_jax_rl.data_parallel`).
 * **Targets once per update** (``cache_targets``, on by default). When the target network cannot change
   within an update (hard copies at update boundaries: ``tau = 1`` and ``target_update_interval`` a
   multiple of ``train_steps``), the targets do not need the online network (``double_q`` off), and
@@ -46,7 +46,7 @@ episode, so the numbers agree at EPyMARL's settings); env steps are counted for 
 step.
 
 ``make_train(env, cfg, mixer) -> train``: ``train(key) -> (params, metrics)``, with
-``train.init`` / ``train.run`` for chunked runs (same contract as :mod:`algorithms.ippo`).
+``train.init`` / ``train.run`` for chunked runs (same contract as :mod:`marbler_jax_rl.ippo`).
 """
 from __future__ import annotations
 
@@ -58,18 +58,18 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from algorithms import buffer as episode_buffer
-from algorithms.common import episode_info, rollout_metrics
-from algorithms.data_parallel import split_batch, split_rows
-from algorithms.ippo import global_state
-from algorithms.networks import QAgent, apply_agents, init_agents, with_agent_ids
+from . import buffer as episode_buffer
+from .common import episode_info, rollout_metrics
+from .data_parallel import split_batch, split_rows
+from .ippo import global_state
+from .networks import QAgent, apply_agents, init_agents, with_agent_ids
 from marbler_jax.numpy_policy import CELLS
 from marbler_jax.rollout import StatefulPolicy
 
 
 @dataclasses.dataclass(frozen=True)
 class QConfig:
-    """Settings shared by VDN and QMIX (the benchmark's settings: ``algorithms.recipes``)."""
+    """Settings shared by VDN and QMIX (the benchmark's settings: ``marbler_jax_rl.recipes``)."""
 
     total_timesteps: int = 1_000_000
     num_envs: int = 16               # sequences collected per update
@@ -95,7 +95,7 @@ class QConfig:
     reward_norm: str = "none"        # none | scale (r / std) | standardise ((r - mean) / std, EPyMARL's)
     hidden: int = 128
     recurrent: bool = True           # False: feed-forward agents (same as cell="none")
-    cell: str = "gru"                # gru | mingru | none (algorithms.networks.QAgent)
+    cell: str = "gru"                # gru | mingru | none (marbler_jax_rl.networks.QAgent)
     layer_norm: bool = False         # LayerNorm before the agents' hidden ReLUs (PQN's stabiliser)
     shared: bool = True
     agent_ids: bool = True

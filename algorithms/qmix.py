@@ -5,12 +5,12 @@
 ``dQ_tot / dq_i >= 0``, so the greedy joint action is the agents' independent argmaxes. ``W1`` and
 ``w2`` come from two-layer hypernetworks (``hypernet_hidden`` units, ReLU), ``b1`` from one layer,
 ``V`` from ``Dense(embed) -> ReLU -> Dense(1)``, as EPyMARL's ``QMixer`` with ``hypernet_layers=2``,
-with PyTorch's default ``nn.Linear`` kernel initialisation (:data:`algorithms.networks.TORCH_LINEAR_INIT`; biases start at
+with PyTorch's default ``nn.Linear`` kernel initialisation (:data:`marbler_jax_rl.networks.TORCH_LINEAR_INIT`; biases start at
 zero): flax's default kernels made the mixer's initial gain on the agents' Q-values ~8x larger, and
 QMIX's TD loss diverged on PCP.
 
 QMIX_NS is QMIX without parameter sharing (``shared=False``: per-agent networks vmapped over
-agents, no agent-ID one-hot). Training is :mod:`algorithms.q_learning`'s.
+agents, no agent-ID one-hot). Training is :mod:`marbler_jax_rl.q_learning`'s.
 """
 from __future__ import annotations
 
@@ -20,8 +20,8 @@ import functools
 import flax.linen as nn
 import jax.numpy as jnp
 
-from algorithms import q_learning
-from algorithms.networks import TORCH_LINEAR_INIT
+from . import q_learning
+from .networks import TORCH_LINEAR_INIT
 
 
 class QMixer(nn.Module):

@@ -27,10 +27,10 @@ import dataclasses
 from types import MappingProxyType
 from typing import Any, Mapping
 
-from algorithms.ippo import IPPOConfig
-from algorithms.mappo import MAPPOConfig
-from algorithms.qmix import QMIXConfig, QMIXNSConfig
-from algorithms.vdn import VDNConfig
+from .ippo import IPPOConfig
+from .mappo import MAPPOConfig
+from .qmix import QMIXConfig, QMIXNSConfig
+from .vdn import VDNConfig
 
 RECIPE_NAMES = ("recipe", "paper", "none")
 """What ``marbler-jax train --preset`` accepts: the algorithm's recipe (default), MARBLER's EPyMARL

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from algorithms.benchmark import ABSOLUTE, ENV_NAME, PAPER_ALGOS, PAPER_SCENARIOS, load_results
-from algorithms.driver import atomic_write
-from algorithms.evaluate import PAPER
+from .benchmark import ABSOLUTE, ENV_NAME, PAPER_ALGOS, PAPER_SCENARIOS, load_results
+from .driver import atomic_write
+from .evaluate import PAPER
 
 # Table order and direction: True where higher is better.
 METRICS = {"reward": True, "steps": False, "prey_left": False, "material_left": False, "collisions": False,

@@ -1,8 +1,8 @@
 """VDN: value decomposition networks -- the team value is the sum of the agents' Q-values.
 
-``Q_tot(s, a) = sum_i Q_i(o_i, a_i)``; trained end to end by :mod:`algorithms.q_learning` (episode
+``Q_tot(s, a) = sum_i Q_i(o_i, a_i)``; trained end to end by :mod:`marbler_jax_rl.q_learning` (episode
 replay, recurrent agents, double-Q targets, hard target copies). EPyMARL's VDN settings used by
-MARBLER (``algorithms.recipes.PAPER``): GRU 128, lr 3e-4, target copy every 200 gradient steps, gradient
+MARBLER (``marbler_jax_rl.recipes.PAPER``): GRU 128, lr 3e-4, target copy every 200 gradient steps, gradient
 clip 10, gamma 0.99, epsilon 1 -> 0.05 over 50k steps, buffer 5000 episodes, batch 32.
 """
 from __future__ import annotations
@@ -11,7 +11,7 @@ import dataclasses
 
 import flax.linen as nn
 
-from algorithms import q_learning
+from . import q_learning
 
 
 class SumMixer(nn.Module):

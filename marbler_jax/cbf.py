@@ -69,7 +69,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from marbler_jax import controllers
-from marbler_jax._xp import fori_loop, from_minor, is_jax, namespace, result_dtype, to_minor, vmap_in_place
+from marbler_jax.xp import fori_loop, from_minor, is_jax, namespace, result_dtype, to_minor, vmap_in_place
 
 SI_KINDS = ("si", "si2", "si_boundary")
 DD_KINDS = ("uni_dd", "uni_dd_boundary")
@@ -279,7 +279,7 @@ class Barrier:
 @functools.lru_cache(maxsize=None)
 def _jax_solver(barrier: Barrier):
     """``barrier._solve`` with a vmap rule that keeps the batch on the minor axis (the solver folds
-    every batch axis into the minor, SIMD, axis; see :func:`marbler_jax._xp.vmap_in_place`)."""
+    every batch axis into the minor, SIMD, axis; see :func:`marbler_jax.xp.vmap_in_place`)."""
     return vmap_in_place(barrier._solve)
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 
-from marbler_jax._xp import namespace
+from marbler_jax.xp import namespace
 
 
 def _unit(theta, xp):

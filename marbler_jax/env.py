@@ -36,8 +36,8 @@ import numpy as np
 from flax import struct
 
 from marbler_jax import physics
-from marbler_jax._xp import vmap_in_place
-from marbler_jax.step_rules import barrier_for, control, control_warm, finish_step
+from marbler_jax.xp import vmap_in_place
+from marbler_jax.control_loop import barrier_for, control, control_warm, finish_step
 from marbler_jax.scenarios.base import Scenario, ScenarioConfig
 
 
@@ -143,7 +143,7 @@ class MarblerEnv:
     def _auto_reset(self):
         """``(done, key, obs, state) -> (obs, state)`` with the finished envs replaced by
         ``reset(key)``; batched over any leading axes, also under ``jax.vmap`` (see
-        :func:`marbler_jax._xp.vmap_in_place`)."""
+        :func:`marbler_jax.xp.vmap_in_place`)."""
         return vmap_in_place(self._reset_where)
 
     def _reset_where(self, done, key, obs, state):
@@ -215,10 +215,6 @@ class MarblerEnv:
             **{k: jnp.asarray(v) for k, v in self.scenario.metrics(scenario_state).items()},
         }
         return obs, next_state, rewards, done, info
-
-    def state_to_poses(self, state: EnvState) -> jax.Array:
-        """Robot poses ``[..., N, 3]`` of a (batched) state, for rendering."""
-        return state.poses
 
     # --- the control loop --------------------------------------------------------------------
     def velocities(self, poses, goals, multipliers=None):

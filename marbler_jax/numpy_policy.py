@@ -1,7 +1,7 @@
 """Trained policies in plain numpy: load an exported policy folder and act greedily.
 
 This module imports numpy only (no JAX), so it runs where JAX is not installed (the Robotarium
-server). A policy folder, written by ``marbler-jax export`` (:mod:`algorithms.export`), is flat:
+server). A policy folder, written by ``marbler-jax export`` (:mod:`marbler_jax_rl.export`), is flat:
 
 * ``policy_spec.npy`` -- a 0-d unicode array holding JSON: ``format``, ``kind`` (``"q_agent"`` for
   VDN/QMIX/QMIX_NS, ``"actor"`` for IPPO/MAPPO), ``recurrent``, ``cell`` (``"gru"``, ``"mingru"``
@@ -39,7 +39,7 @@ import numpy as np
 
 FORMAT = "marbler-jax-policy/1"
 SPEC_FILE = "policy_spec.npy"
-CELLS = ("gru", "mingru", "none")      # a Q-agent's memory (algorithms.networks.QAgent uses the same names)
+CELLS = ("gru", "mingru", "none")      # a Q-agent's memory (marbler_jax_rl.networks.QAgent uses the same names)
 
 
 def _sigmoid(x):

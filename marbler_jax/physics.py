@@ -7,7 +7,7 @@ Conventions (robot-major, unlike rps's ``3 x N``):
 * wheel speeds: ``[..., N, 2]`` = (left, right) [rad/s].
 
 Every function is pure, batched over leading axes and works on numpy *or* JAX arrays (the
-namespace follows the inputs, see :mod:`marbler_jax._xp`), so the numpy-only Robotarium bundle
+namespace follows the inputs, see :mod:`marbler_jax.xp`), so the numpy-only Robotarium bundle
 runs the same code as training.
 
 Simulator versions (see ``shared/spec/robotarium.md``):
@@ -32,7 +32,7 @@ from typing import Literal
 
 import numpy as np
 
-from marbler_jax._xp import fori_loop, from_minor, namespace, result_dtype, to_minor, vmap_in_place
+from marbler_jax.xp import fori_loop, from_minor, namespace, result_dtype, to_minor, vmap_in_place
 
 ThresholdMode = Literal["components", "wheels"]
 
@@ -232,7 +232,7 @@ def held_ticks(params: RobotariumParams, poses, velocities, ticks: int, stop_on_
     angle ``dt * omega``, so the loop needs no trig; it agrees with :func:`integrate` to rounding.
 
     Under JAX the tick loop (``ticks > 1``) runs on robot-major, batch-minor arrays ``[N, B]``
-    (also under ``jax.vmap``, through :func:`marbler_jax._xp.vmap_in_place`), so every per-tick op
+    (also under ``jax.vmap``, through :func:`marbler_jax.xp.vmap_in_place`), so every per-tick op
     is a unit-stride vector op over the whole batch.
 
     Args:
@@ -356,13 +356,6 @@ def out_of_bounds(params: RobotariumParams, poses):
     return (x < x_min) | (x > x_max) | (y < y_min) | (y > y_max)
 
 
-def actuator_violations(params: RobotariumParams, velocities):
-    """Per-robot flags ``[..., N]``: some wheel of the *un-thresholded* command exceeds its limit."""
-    xp = namespace(velocities)
-    wheels = uni_to_diff(params, velocities)
-    return xp.any(xp.abs(wheels) > params.max_wheel_velocity, axis=-1)
-
-
 def check_num_robots(params: RobotariumParams, num_robots: int) -> int:
     """Validate a team size against the simulator's limit; returns it as int."""
     try:
@@ -386,6 +379,6 @@ def max_angular_velocity(params: RobotariumParams) -> float:
 __all__ = [
     "RobotariumParams", "PRESETS", "DEFAULT_PRESET", "get_params", "uni_to_diff", "diff_to_uni",
     "threshold", "wrap_angle", "integrate", "trajectory", "held_ticks", "collision_centres", "pair_distances", "collisions",
-    "collision_pairs", "out_of_bounds", "actuator_violations", "check_num_robots",
+    "collision_pairs", "out_of_bounds", "check_num_robots",
     "max_angular_velocity",
 ]

@@ -23,9 +23,9 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import marbler_jax
-from algorithms import ippo, vdn
-from algorithms.driver import atomic_write
-from algorithms.export import export_params
+from marbler_jax_rl import ippo, vdn
+from marbler_jax_rl.driver import atomic_write
+from marbler_jax_rl.export import export_params
 from marbler_jax.deploy.bundle import folder_size, write_bundle
 
 ARCHITECTURES = {

@@ -7,7 +7,7 @@ control period (15: MARBLER's training loop, 1: the real Robotarium's). At every
 certificate is solved three ways on the same input: a reference (400 cold sweeps), ``k`` cold sweeps,
 and ``k`` sweeps warm-started from the previous refresh's ``k``-sweep multipliers (what the env does
 with ``cbf_warm_start``); ``k`` and the over-relaxation factor come from ``--sweeps`` and
-``--relaxation`` (default: the env's, :data:`marbler_jax.step_rules.ENV_RELAXATION`). The robots
+``--relaxation`` (default: the env's, :data:`marbler_jax.control_loop.ENV_RELAXATION`). The robots
 follow the reference, so every solve sees the same trajectory.
 Reported: the share of refreshes whose ``k``-sweep output matches the reference within the golden
 tolerance (every component within 5e-4 + 1e-3 max|u_ref|), and the largest constraint violation
@@ -15,7 +15,7 @@ tolerance (every component within 5e-4 + 1e-3 max|u_ref|), and the largest const
 run with ``k`` sweeps and with 400, and the share of envs whose robots end up > 1 mm / > 1 cm apart
 (and whose ``done`` differs) within ``--drift-steps`` steps (``--drift-agents`` sets the team size).
 Then env-steps/s of ``jit(scan(vmap(env.step)))`` at batch 4096 for the sweep budgets the env uses by
-default (:func:`marbler_jax.step_rules.default_cbf_iterations`).
+default (:func:`marbler_jax.control_loop.default_cbf_iterations`).
 """
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import marbler_jax  # noqa: E402
 from marbler_jax import cbf, controllers, physics  # noqa: E402
-from marbler_jax.step_rules import ENV_RELAXATION, finish_step  # noqa: E402
+from marbler_jax.control_loop import ENV_RELAXATION, finish_step  # noqa: E402
 from marbler_jax.rollout import random_actions  # noqa: E402
 
 

@@ -23,7 +23,7 @@ from tqdm.auto import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import marbler_jax  # noqa: E402
-from algorithms.driver import atomic_write  # noqa: E402
+from marbler_jax_rl.driver import atomic_write  # noqa: E402
 from marbler_jax.rollout import make_rollout  # noqa: E402
 
 

@@ -35,10 +35,10 @@ import jax
 from tqdm.auto import tqdm
 
 import marbler_jax
-from algorithms.data_parallel import use_cpu_devices
-from algorithms.driver import ALGORITHMS, atomic_write, build_config, has_setting
-from algorithms.recipes import settings
-from marbler_jax.cli import parse_overrides
+from marbler_jax_rl.data_parallel import use_cpu_devices
+from marbler_jax_rl.driver import ALGORITHMS, atomic_write, build_config, has_setting
+from marbler_jax_rl.recipes import settings
+from marbler_jax_rl.cli import parse_overrides
 
 
 def prepare(scenario: str, algo: str, preset_name: str, updates: int, seeds: int = 1,

@@ -124,7 +124,7 @@ def ippo_simple_nav_run(tmp_path_factory):
     """One IPPO run on Simple Navigation (150k steps, default env: safe CBF, control every tick), trained once
     per session (:func:`build_once`) through the training driver; used by the learning test and the
     Robotarium bundle test."""
-    from algorithms.driver import train
+    from marbler_jax_rl.driver import train
 
     def build(folder):
         train("simple_navigation", "ippo", 150_000, 1, folder / "run", hp={"num_envs": 64, "num_steps": 64, "lr": 1e-3},

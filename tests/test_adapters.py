@@ -71,3 +71,17 @@ def test_importing_the_package_has_no_gymnasium_side_effect_and_the_numpy_policy
     code = ("import sys; sys.modules['jax'] = None; sys.modules['flax'] = None; "
             "from marbler_jax.numpy_policy import load_policy; assert sys.modules['jax'] is None")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_the_simulator_never_imports_the_learners_and_algorithms_is_no_import_name(tmp_path):
+    """``marbler_jax`` (simulator, scenarios, adapters, deploy, numpy policy, render) stands alone; the learners
+    install as ``marbler_jax_rl``, so no top-level ``algorithms`` package shadows another project's."""
+    import subprocess
+    import sys
+
+    code = ("import sys, marbler_jax, marbler_jax.adapters, marbler_jax.deploy.bundle, marbler_jax.numpy_policy, "
+            "marbler_jax.render, marbler_jax.rollout, marbler_jax.scenarios; "
+            "assert not [m for m in sys.modules if m.startswith(('marbler_jax_rl', 'algorithms'))], 'learners imported'; "
+            "import importlib.util; assert importlib.util.find_spec('algorithms') is None, 'algorithms is importable'; "
+            "import marbler_jax_rl.cli")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=tmp_path)   # not the repository root

@@ -6,8 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from algorithms import benchmark, report
-from algorithms.benchmark import ABSOLUTE, ENV_NAME, finished_cells, grid, load_results, run_benchmark
+from marbler_jax_rl import benchmark, report
+from marbler_jax_rl.benchmark import ABSOLUTE, ENV_NAME, finished_cells, grid, load_results, run_benchmark
 
 pytest.importorskip("rliable")
 
@@ -99,7 +99,7 @@ def test_tiny_benchmark_writes_resumes_and_reports(tmp_path):
     out, logs = tmp_path / "bench", []
     kwargs = dict(algos=["ippo", "mappo"], scenarios=["simple"], seeds=2, total_steps=3 * 1024, eval_points=3,
                   test_episodes=4, absolute_factor=2, progress=False, log=logs.append)
-    from algorithms import recipes
+    from marbler_jax_rl import recipes
 
     small = {a: recipes.Recipe(a, type(r.config)(num_envs=16, num_steps=64, hidden=16), steps=r.steps)
              for a, r in recipes.RECIPES.items() if a in ("ippo", "mappo")}
@@ -155,7 +155,7 @@ def test_two_processes_share_the_grid_through_jax_distributed(tmp_path):
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     out = tmp_path / "bench"
-    procs = [subprocess.Popen([sys.executable, "-m", "marbler_jax", "benchmark", "--algos", "ippo", "mappo",
+    procs = [subprocess.Popen([sys.executable, "-m", "marbler_jax_rl", "benchmark", "--algos", "ippo", "mappo",
                                "--scenarios", "simple", "--seeds", "1", "--total-steps", "2048", "--eval-points", "2",
                                "--test-episodes", "2", "--absolute-factor", "2", "--out", str(out), "--no-progress",
                                "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2", "--process-id", str(i)])
@@ -167,7 +167,7 @@ def test_two_processes_share_the_grid_through_jax_distributed(tmp_path):
 
 
 def test_shard_flag_is_checked():
-    from marbler_jax.cli import _parse_shard
+    from marbler_jax_rl.cli import _parse_shard
 
     assert _parse_shard("1/3") == (1, 3) and _parse_shard(None) == (0, 1)
     for bad in ("3/3", "a/b", "1"):

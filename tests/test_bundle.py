@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 
 import marbler_jax
-from algorithms import ippo, mappo, qmix, vdn
-from algorithms.export import export_params
-from marbler_jax.cli import main as cli
+from marbler_jax_rl import ippo, mappo, qmix, vdn
+from marbler_jax_rl.export import export_params
+from marbler_jax_rl.cli import main as cli
 from marbler_jax.deploy.bundle import write_bundle
 from marbler_jax.deploy.flatten import check_bundle_folder, flatten_module
 from marbler_jax.deploy.replay import replay_trace

@@ -9,9 +9,9 @@ import jax
 import numpy as np
 import pytest
 
-from algorithms.driver import load_run
-from algorithms.evaluate import greedy_episodes
-from marbler_jax.cli import main, parse_overrides
+from marbler_jax_rl.driver import load_run
+from marbler_jax_rl.evaluate import greedy_episodes
+from marbler_jax_rl.cli import main, parse_overrides
 
 
 def load_script(name: str):

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import pytest
 
 import marbler_jax
-from algorithms import ippo, vdn
+from marbler_jax_rl import ippo, vdn
 
 
 def host_callbacks(lowered) -> int:

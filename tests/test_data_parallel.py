@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 
 import marbler_jax
-from algorithms import vdn
+from marbler_jax_rl import vdn
 
 REPO = Path(__file__).resolve().parents[1]
 
 PRELUDE = """
 import sys
-from algorithms.data_parallel import use_cpu_devices
+from marbler_jax_rl.data_parallel import use_cpu_devices
 use_cpu_devices(2)
 import jax, numpy as np, pytest
 import marbler_jax
@@ -28,7 +28,7 @@ assert len(jax.devices()) == 2
 """
 
 MATCH_ONE_DEVICE = PRELUDE + textwrap.dedent("""
-    from algorithms import qmix
+    from marbler_jax_rl import qmix
 
     # 1 vs 2 devices: the same updates up to float rounding (QMIX: the mixer's gradients are split too)
     env = marbler_jax.make("predator_capture_prey", control_period=15)
@@ -50,7 +50,7 @@ MATCH_ONE_DEVICE = PRELUDE + textwrap.dedent("""
 """)
 
 RESUME = PRELUDE + textwrap.dedent("""
-    from algorithms.driver import train
+    from marbler_jax_rl.driver import train
     from tests.helpers import interrupt_at
 
     # interrupted + resumed == uninterrupted, bit for bit, with two seeds and two devices; with persistent envs
@@ -88,7 +88,7 @@ def test_two_devices_resume_bit_exactly(tmp_path):
     # this process has one device: the two-device run's checkpoints still restore (no device layout saved)
     import orbax.checkpoint as ocp
 
-    from algorithms.driver import load_run
+    from marbler_jax_rl.driver import load_run
 
     restored = ocp.CheckpointManager(tmp_path / "full" / "checkpoints").restore(4)
     kernel = np.load(tmp_path / "full" / "params.npz")["agent/params/fc1/kernel"]

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import marbler_jax
-from marbler_jax import cbf, step_rules
+from marbler_jax import cbf, control_loop
 from marbler_jax.rollout import make_rollout
 
 NAMES = marbler_jax.registered()
@@ -147,14 +147,14 @@ def test_bad_scenario_and_actions_are_rejected_clearly():
 
 
 def test_barrier_sweeps_and_relaxation_follow_the_config():
-    """Defaults from step_rules (the env-tuned 1.5 for every team size, not the golden-tuned 1.7 that
+    """Defaults from control_loop (the env-tuned 1.5 for every team size, not the golden-tuned 1.7 that
     cbf uses above 10 robots); explicit cbf_iterations / cbf_relaxation reach the solver unchanged."""
     cases = [(dict(), 4, 6), (dict(control_period=15), 4, 12),
              (dict(n_agents=20, start_dist=0.3), 20, 10), (dict(n_agents=20, start_dist=0.3, control_period=15), 20, 20)]
     for overrides, n, sweeps in cases:
         env = marbler_jax.make("warehouse", **{"n_agents": 4, **overrides})
         assert env.num_agents == n and env.barrier.iterations == sweeps, (overrides, env.barrier.iterations)
-        assert env.barrier.omega(n) == step_rules.ENV_RELAXATION == 1.5
+        assert env.barrier.omega(n) == control_loop.ENV_RELAXATION == 1.5
     env = marbler_jax.make("warehouse", n_agents=20, start_dist=0.3, cbf_iterations=7, cbf_relaxation=1.2)
     assert (env.barrier.iterations, env.barrier.omega(20)) == (7, 1.2)
     assert cbf.make_barrier("si2").omega(20) == 1.7

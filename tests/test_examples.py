@@ -12,10 +12,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import marbler_jax
-from algorithms import ippo
-from algorithms.driver import load_run
-from algorithms.export import export_params
-from marbler_jax.cli import main
+from marbler_jax_rl import ippo
+from marbler_jax_rl.driver import load_run
+from marbler_jax_rl.export import export_params
+from marbler_jax_rl.cli import main
 from marbler_jax.deploy.bundle import write_bundle
 from marbler_jax.deploy.flatten import check_bundle_folder
 from marbler_jax.rollout import episode_stats, make_rollout

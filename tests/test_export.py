@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 import marbler_jax
-from algorithms import ippo, mappo, qmix, vdn
-from algorithms.export import export_params
-from algorithms.networks import apply_agents
-from algorithms.q_learning import agent_inputs, agent_module
+from marbler_jax_rl import ippo, mappo, qmix, vdn
+from marbler_jax_rl.export import export_params
+from marbler_jax_rl.networks import apply_agents
+from marbler_jax_rl.q_learning import agent_inputs, agent_module
 from marbler_jax.numpy_policy import NumpyPolicy, load_policy
 
 CASES = {

@@ -6,8 +6,8 @@ import time
 
 import pytest
 
-from algorithms.hang_guard import HangGuard, resume_argv
-from marbler_jax import cli
+from marbler_jax_rl.hang_guard import HangGuard, resume_argv
+from marbler_jax_rl import cli
 
 
 def test_fires_once_when_the_process_stays_idle():
@@ -38,6 +38,6 @@ def test_cli_restarts_the_same_command_with_resume(monkeypatch):
     seen = []
     monkeypatch.setattr(cli.os, "execv", lambda exe, argv: seen.append((exe, argv)))
     cli._restart_resumed(["train", "--algo", "vdn", "--out", "runs/x"], 130.0)
-    assert seen == [(sys.executable, [sys.executable, "-m", "marbler_jax", "train", "--algo", "vdn", "--out",
+    assert seen == [(sys.executable, [sys.executable, "-m", "marbler_jax_rl", "train", "--algo", "vdn", "--out",
                                       "runs/x", "--resume"])]
     assert cli.main(["train", "--hang-seconds", "-1", "--out", "unused"]) == 2

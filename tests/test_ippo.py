@@ -5,7 +5,7 @@ import jax
 import numpy as np
 
 import marbler_jax
-from algorithms.ippo import IPPOConfig, make_train
+from marbler_jax_rl.ippo import IPPOConfig, make_train
 from marbler_jax.rollout import episode_stats, make_rollout
 
 
@@ -43,7 +43,7 @@ def test_ippo_seeds_in_one_program_and_unshared_parameters():
 
 
 def test_mappo_critic_sees_the_global_state_and_learns():
-    from algorithms import mappo
+    from marbler_jax_rl import mappo
 
     env = marbler_jax.make("simple_navigation")
     cfg = mappo.MAPPOConfig(total_timesteps=150_000, num_envs=64, num_steps=64, lr=1e-3)

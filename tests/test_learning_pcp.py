@@ -21,10 +21,10 @@ RANDOM_RETURN = -4.8
 @pytest.mark.slow
 @pytest.mark.parametrize("algo", ["vdn", "qmix", "qmix_ns"])
 def test_recipe_captures_prey(tmp_path, algo):
-    from algorithms.evaluate import evaluate_run
+    from marbler_jax_rl.evaluate import evaluate_run
 
     out = tmp_path / algo
-    subprocess.run([sys.executable, "-m", "marbler_jax.cli", "train", "--scenario", "pcp", "--algo", algo,
+    subprocess.run([sys.executable, "-m", "marbler_jax_rl.cli", "train", "--scenario", "pcp", "--algo", algo,
                     "--hp", "learner_devices=2", "--total-steps", "1e7", "--out", str(out), "--no-progress",
                     "--eval-episodes", "0"], check=True, timeout=3600)
     result = evaluate_run(out, episodes=200)["pooled"]

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import marbler_jax
-from algorithms.driver import ALGORITHMS, build_config
-from algorithms.networks import QAgent, apply_agents, init_agents, orthogonal
+from marbler_jax_rl.driver import ALGORITHMS, build_config
+from marbler_jax_rl.networks import QAgent, apply_agents, init_agents, orthogonal
 
 
 def _qr_operand_shapes(jaxpr, found):

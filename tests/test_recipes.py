@@ -6,8 +6,8 @@ import dataclasses
 
 import pytest
 
-from algorithms.driver import ALGORITHMS, build_config
-from algorithms.recipes import PAPER, RECIPE_NAMES, RECIPES, Recipe, recipe, settings
+from marbler_jax_rl.driver import ALGORITHMS, build_config
+from marbler_jax_rl.recipes import PAPER, RECIPE_NAMES, RECIPES, Recipe, recipe, settings
 
 SCENARIOS = ("predator_capture_prey", "warehouse", "material_transport", "arctic_transport")
 
@@ -79,7 +79,7 @@ def test_an_alias_gets_the_budget_of_its_scenario(tmp_path):
     run folder stores the canonical name (the paper column of ``evaluate`` finds it)."""
     import json
 
-    from marbler_jax.cli import main
+    from marbler_jax_rl.cli import main
 
     out = tmp_path / "run"
     from marbler_jax.registry import canonical_name

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import marbler_jax
-from marbler_jax.cli import main
+from marbler_jax_rl.cli import main
 from marbler_jax.render import FrameDrawer, record_episodes, render_frame, render_grid_episode
 
 

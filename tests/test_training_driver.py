@@ -12,9 +12,9 @@ import pytest
 
 import marbler_jax
 from tests.helpers import interrupt_at
-from algorithms.driver import (ALGORITHMS, SEED_BATCHING, keep_improved, load_params, load_run, make_tester,
+from marbler_jax_rl.driver import (ALGORITHMS, SEED_BATCHING, keep_improved, load_params, load_run, make_tester,
                                seed_best_scores, train)
-from algorithms.ippo import IPPOConfig, make_train
+from marbler_jax_rl.ippo import IPPOConfig, make_train
 
 HP = dict(num_envs=8, num_steps=8, num_minibatches=2, update_epochs=1, hidden=16)
 STEPS = 4 * 8 * 8  # 4 updates
@@ -169,7 +169,7 @@ TWO_SEEDS = dict(scenario="simple_navigation", algo="ippo", total_steps=STEPS, s
 def test_best_checkpoint_keeps_each_seeds_best_and_evaluate_can_pick_the_best_seed(tmp_path):
     """``best/`` holds, per seed, the parameters of that seed's best greedy test (each seed an independent
     run); ``evaluate --best-seed`` plays only the seed with the highest one, as the paper's Table II does."""
-    from algorithms.evaluate import best_seed, evaluate_run, markdown_table
+    from marbler_jax_rl.evaluate import best_seed, evaluate_run, markdown_table
 
     run = tmp_path / "run"
     train(out=run, **TWO_SEEDS)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from algorithms.driver import build_config, train
-from marbler_jax.cli import main
+from marbler_jax_rl.driver import build_config, train
+from marbler_jax_rl.cli import main
 
 
 @pytest.mark.parametrize("algo, overrides, message", [

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 import marbler_jax
-from algorithms import buffer as episode_buffer
-from algorithms import qmix, vdn
-from algorithms.recipes import PAPER, RECIPES
+from marbler_jax_rl import buffer as episode_buffer
+from marbler_jax_rl import qmix, vdn
+from marbler_jax_rl.recipes import PAPER, RECIPES
 from marbler_jax.rollout import episode_stats, make_rollout
 
 
@@ -42,7 +42,7 @@ def test_qmix_mixer_starts_with_a_moderate_gain_on_the_agents_q_values():
     """With flax's default (lecun_normal) kernels the two hypernetwork layers make Q_tot ~270x as
     sensitive to the agents' Q-values on PCP states, and QMIX's TD loss diverged (~1e3-1e4) where VDN's
     stays ~1; PyTorch's nn.Linear init (EPyMARL's) gives ~35x."""
-    from algorithms.ippo import global_state
+    from marbler_jax_rl.ippo import global_state
 
     env = marbler_jax.make("predator_capture_prey")
     obs, _ = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 256))
@@ -57,7 +57,7 @@ def test_qmix_mixer_starts_with_a_moderate_gain_on_the_agents_q_values():
 
 
 def test_running_reward_moments_and_normalisation():
-    from algorithms.q_learning import normalise_rewards, update_moments
+    from marbler_jax_rl.q_learning import normalise_rewards, update_moments
 
     batches = [np.random.default_rng(i).normal(3.0 * i, 1.0 + i, size=(4, 7)).astype(np.float32) for i in range(3)]
     moments = (jnp.float32(0), jnp.float32(0), jnp.float32(0))
@@ -79,7 +79,7 @@ def test_running_reward_moments_and_normalisation():
 
 
 def test_lambda_returns_match_the_recursive_definition_and_stop_at_episode_ends():
-    from algorithms.q_learning import lambda_returns
+    from marbler_jax_rl.q_learning import lambda_returns
 
     rng = np.random.default_rng(0)
     T, B, gamma = 9, 3, 0.9
@@ -155,7 +155,7 @@ def test_targets_are_computed_once_per_update_only_where_that_is_exact_and_cheap
 def test_eps_spread_gives_each_env_its_own_exploration_rate():
     """``eps_spread``: env ``i`` of ``n`` explores with ``eps ** (1 + a * i / (n - 1))`` -- checked on the
     collected actions against the greedy actions of the (not yet trained) parameters."""
-    from algorithms.q_learning import env_epsilons, greedy_policy
+    from marbler_jax_rl.q_learning import env_epsilons, greedy_policy
 
     np.testing.assert_array_equal(env_epsilons(0.05, 4, 0.0), np.full(4, 0.05, np.float32))
     np.testing.assert_allclose(env_epsilons(0.05, 3, 2.0), [0.05, 0.05 ** 2, 0.05 ** 3], rtol=1e-5)
@@ -187,8 +187,8 @@ def test_persistent_envs_continue_across_updates_with_the_stored_hidden_state(mo
     """``persistent_envs``: an update's sequences start where the last update's stopped (obs, reset flag)
     and store the collecting network's hidden state there, from which the agents' Q-values give exactly
     the greedy actions they took (epsilon 0, no learning yet)."""
-    from algorithms.networks import QAgent, apply_agents
-    from algorithms.q_learning import agent_inputs, agent_module
+    from marbler_jax_rl.networks import QAgent, apply_agents
+    from marbler_jax_rl.q_learning import agent_inputs, agent_module
 
     env = marbler_jax.make("predator_capture_prey", control_period=15)
     cfg = config(num_envs=4, buffer_size=8, batch_size=4, num_steps=30, learning_starts=10**6, hidden=16, cell=cell,
@@ -234,8 +234,8 @@ def test_last_action_inputs_agree_between_acting_learning_and_the_greedy_policy(
     collected actions are exactly the greedy policy's (which feeds back its own last actions) replayed
     along the buffer's episodes, and the learner's inputs (``previous_actions`` of the stored actions)
     give Q-values whose argmax is again those actions."""
-    from algorithms.networks import QAgent, apply_agents
-    from algorithms.q_learning import agent_inputs, agent_module, greedy_policy, previous_actions
+    from marbler_jax_rl.networks import QAgent, apply_agents
+    from marbler_jax_rl.q_learning import agent_inputs, agent_module, greedy_policy, previous_actions
 
     env = marbler_jax.make("predator_capture_prey", control_period=15)
     cfg = config(num_envs=4, buffer_size=4, batch_size=4, learning_starts=10**6, hidden=16, cell=cell,

@@ -3,7 +3,7 @@
 Contents (every file has an extension the Robotarium accepts):
 
 * ``main.py`` -- the entry point (mark it as the main file when uploading);
-* ``robotarium_loop.py``, ``step_rules.py``, ``physics.py``, ``controllers.py``, ``cbf.py``, ``_xp.py``,
+* ``robotarium_loop.py``, ``control_loop.py``, ``physics.py``, ``controllers.py``, ``cbf.py``, ``xp.py``,
   ``numpy_policy.py``, ``scenario_base.py`` and the scenario's module -- the package's own modules,
   flattened by :mod:`marbler_jax.deploy.flatten` (flat imports, no JAX);
 * ``policy_spec.npy`` and one ``.npy`` per weight tensor (:mod:`marbler_jax.numpy_policy`);

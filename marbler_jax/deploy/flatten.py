@@ -8,7 +8,7 @@ package module itself, rewritten on its syntax tree by :func:`flatten_module`:
 * ``jax`` / ``flax`` imports are dropped, and so is every function that uses them -- only the
   JAX-only samplers (``reset`` and the spawn helpers, :data:`JAX_ONLY`) may be dropped; the bundle
   starts its episodes from initial states sampled at export time;
-* ``@struct.dataclass`` scenario states become :func:`marbler_jax._xp.frozen_state` dataclasses;
+* ``@struct.dataclass`` scenario states become :func:`marbler_jax.xp.frozen_state` dataclasses;
 * annotations that name JAX types become plain strings.
 
 :func:`check_flat_source` then proves the result imports neither JAX nor flax nor ``marbler_jax``.
@@ -27,11 +27,11 @@ ALLOWED_EXTENSIONS = frozenset({".py", ".npy", ".mat", ".tiff", ".png", ".jpg", 
 
 # package module -> bundle file stem
 CORE_MODULES = {
-    "marbler_jax._xp": "_xp",
+    "marbler_jax.xp": "xp",
     "marbler_jax.physics": "physics",
     "marbler_jax.controllers": "controllers",
     "marbler_jax.cbf": "cbf",
-    "marbler_jax.step_rules": "step_rules",
+    "marbler_jax.control_loop": "control_loop",
     "marbler_jax.numpy_policy": "numpy_policy",
     "marbler_jax.scenarios.base": "scenario_base",
     "marbler_jax.deploy.robotarium_loop": "robotarium_loop",
@@ -172,7 +172,7 @@ def flatten_module(module: str, names: dict[str, str], dropped_elsewhere: dict |
     unexpected = sorted(set(flattener.dropped) - JAX_ONLY)
     if unexpected:
         raise ValueError(f"{module}: {unexpected} use JAX, so the numpy bundle cannot run them; write them "
-                         f"against the array namespace (marbler_jax._xp.namespace). Only {sorted(JAX_ONLY)} may be "
+                         f"against the array namespace (marbler_jax.xp.namespace). Only {sorted(JAX_ONLY)} may be "
                          "JAX-only.")
     if flattener.needs_frozen_state:
         position = 0
@@ -180,7 +180,7 @@ def flatten_module(module: str, names: dict[str, str], dropped_elsewhere: dict |
             if not (isinstance(stmt, ast.Expr) and isinstance(stmt.value, ast.Constant)) and not (
                     isinstance(stmt, ast.ImportFrom) and stmt.module == "__future__"):
                 break
-        tree.body.insert(position, ast.ImportFrom(module=names[f"{PACKAGE}._xp"],
+        tree.body.insert(position, ast.ImportFrom(module=names[f"{PACKAGE}.xp"],
                                                   names=[ast.alias(name="frozen_state")], level=0))
     ast.fix_missing_locations(tree)
     relative = path.relative_to(PACKAGE_DIR.parent).as_posix() if path.is_relative_to(PACKAGE_DIR.parent) else path.name

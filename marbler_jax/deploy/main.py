@@ -27,7 +27,7 @@ import numpy as np
 from marbler_jax.deploy.robotarium_loop import run_episode
 from marbler_jax.numpy_policy import load_policy
 from marbler_jax.scenarios.base import build_config
-from marbler_jax.step_rules import barrier_for
+from marbler_jax.control_loop import barrier_for
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 CONFIG_FILE = "bundle_config.npy"

@@ -3,8 +3,8 @@
 This is the training env's control loop (:meth:`marbler_jax.env.MarblerEnv.step_env`) with the
 robots in place of :func:`marbler_jax.physics.held_ticks`; the maths is shared, not copied:
 waypoints, task events, rewards and observations come from the scenario, the command from
-:func:`marbler_jax.step_rules.control`, the step's closing rules from
-:func:`marbler_jax.step_rules.finish_step`, the violation tests from :mod:`marbler_jax.physics`.
+:func:`marbler_jax.control_loop.control`, the step's closing rules from
+:func:`marbler_jax.control_loop.finish_step`, the violation tests from :mod:`marbler_jax.physics`.
 
 Per env step: the policy acts on the observation, the scenario turns actions into waypoints from the
 poses at the start of the step, then for each of ``update_frequency`` Robotarium iterations:
@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from marbler_jax import physics
-from marbler_jax.step_rules import control, control_warm, finish_step
+from marbler_jax.control_loop import control, control_warm, finish_step
 
 
 @dataclass
@@ -74,7 +74,7 @@ def run_episode(robotarium, scenario, policy, scenario_state, barrier=None, para
         scenario: the scenario (its ``config`` gives update frequency, control period, horizon).
         policy: a :class:`marbler_jax.numpy_policy.NumpyPolicy` (greedy; hidden state carried).
         scenario_state: the scenario's state at the start of the episode.
-        barrier: the SI barrier (:func:`marbler_jax.step_rules.barrier_for`), ``None`` for none.
+        barrier: the SI barrier (:func:`marbler_jax.control_loop.barrier_for`), ``None`` for none.
         params: physics constants for the violation tests (default: ``config.physics``).
 
     Returns:

@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from marbler_jax._xp import namespace
+from marbler_jax.xp import namespace
 from marbler_jax.scenarios.base import Scenario, ScenarioConfig
 
 ROWS, COLS, CELL = 8, 12, 0.25

@@ -16,10 +16,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from marbler_jax._xp import namespace
+from marbler_jax.xp import namespace
 
-# MARBLER's discrete actions: 0 left (-x), 1 right (+x), 2 "up" (-y), 3 "down" (+y), 4 no action.
-ACTION_NAMES = ("left", "right", "up", "down", "no_action")
 BARRIERS = ("safe", "default", "none", "si", "si2", "si_boundary")
 
 
@@ -40,12 +38,12 @@ class ScenarioConfig:
         barrier_certificate: ``"safe"`` (MARBLER default: certificate2, radius 0.2), ``"default"``
             (certificate, radius 0.17), ``"none"``, or an SI kind of :mod:`marbler_jax.cbf`.
         cbf_iterations: solver sweeps of the barrier per control refresh (``None``:
-            :func:`marbler_jax.step_rules.default_cbf_iterations`, 12 cold or 6 warm-started at
+            :func:`marbler_jax.control_loop.default_cbf_iterations`, 12 cold or 6 warm-started at
             ``control_period=1`` for 4 robots, 20 cold or 10 warm for 20, chosen on env
             trajectories; see :func:`marbler_jax.cbf.default_iterations` for the budget that
             matches arbitrary, overlapping configurations at any N).
         cbf_relaxation: over-relaxation of those sweeps, in (0, 2) (``None``:
-            :data:`marbler_jax.step_rules.ENV_RELAXATION` = 1.5).
+            :data:`marbler_jax.control_loop.ENV_RELAXATION` = 1.5).
         cbf_warm_start: start each control refresh's barrier sweeps from the previous refresh's
             multipliers (kept in the env state, zero at reset). The QP's solution does not depend
             on the start, only how close the fixed sweep budget gets to it. ``None`` (default): on

@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from marbler_jax._xp import namespace
+from marbler_jax.xp import namespace
 from marbler_jax.scenarios.base import (JaxRobotariumConfig, Scenario, check_grid_capacity, cyclic_blocks,
                                         sample_grid_points)
 

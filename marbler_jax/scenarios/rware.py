@@ -41,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from marbler_jax._xp import namespace
+from marbler_jax.xp import namespace
 from marbler_jax.scenarios.base import JaxRobotariumConfig, Scenario, cyclic_blocks, distinct_indices
 
 BLOCK_HALF = 0.125   # half side of a cell's blocking box [m]

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from marbler_jax._xp import namespace
+from marbler_jax.xp import namespace
 from marbler_jax.scenarios.base import Scenario, ScenarioConfig, check_capacity, nearest_others, spawn_band
 
 

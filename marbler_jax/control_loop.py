@@ -1,6 +1,7 @@
-"""MARBLER's per-step rules, shared by the JAX env and the numpy Robotarium bundle.
+"""MARBLER's control loop -- one env step's controller, barrier and closing rules -- shared by the JAX env
+and the numpy Robotarium bundle.
 
-Everything here works on numpy *or* JAX arrays (see :mod:`marbler_jax._xp`): the batched env
+Everything here works on numpy *or* JAX arrays (see :mod:`marbler_jax.xp`): the batched env
 (:mod:`marbler_jax.env`) calls it inside ``jit``/``vmap``, and the submission bundle's ``main.py``
 calls the very same functions on the poses the Robotarium returns. What differs between the two is
 only who moves the robots: :func:`marbler_jax.physics.held_ticks` in training, ``rps`` (or the real
@@ -11,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 
 from marbler_jax import cbf, controllers
-from marbler_jax._xp import namespace
+from marbler_jax.xp import namespace
 
 
 ENV_RELAXATION = 1.5

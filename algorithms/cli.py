@@ -1,4 +1,4 @@
-"""The ``marbler-jax`` command line (also ``python -m marbler_jax``).
+"""The ``marbler-jax`` command line (also ``python -m marbler_jax_rl``).
 
 Subcommands:
     demo     -- batched swap rollout of Robotarium robots under a barrier certificate: prints
@@ -143,7 +143,7 @@ def _list(args) -> int:
     import importlib
 
     import marbler_jax
-    from algorithms.driver import ALGORITHM_SUMMARIES
+    from .driver import ALGORITHM_SUMMARIES
     from marbler_jax.registry import scenario_class
 
     def first_line(text: str | None) -> str:
@@ -166,24 +166,24 @@ def _list(args) -> int:
 
 def _restart_resumed(argv, idle: float) -> None:
     """Replace this hung process by the same ``train`` command with ``--resume`` (bit-exact continuation)."""
-    from algorithms.hang_guard import hang_message, resume_argv
+    from .hang_guard import hang_message, resume_argv
 
     print(f"marbler-jax: {hang_message(idle)}; restarting from the last checkpoint with --resume",
           file=sys.stderr, flush=True)
     sys.stdout.flush()
-    os.execv(sys.executable, [sys.executable, "-m", "marbler_jax", *resume_argv(argv)])
+    os.execv(sys.executable, [sys.executable, "-m", "marbler_jax_rl", *resume_argv(argv)])
 
 
 def _train(args) -> int:
-    from algorithms.driver import train
-    from algorithms.recipes import settings
+    from .driver import train
+    from .recipes import settings
     from marbler_jax.registry import canonical_name
 
     env_overrides, hp, steps = settings(args.preset, canonical_name(args.scenario), args.algo)
     env_overrides.update(parse_overrides(args.set))
     hp.update(parse_overrides(args.hp))
     if isinstance(hp.get("learner_devices"), int):
-        from algorithms.data_parallel import use_cpu_devices
+        from .data_parallel import use_cpu_devices
 
         use_cpu_devices(hp["learner_devices"])      # before JAX first runs
     total = int(float(args.total_steps)) if args.total_steps else steps
@@ -204,10 +204,10 @@ def _benchmark(args) -> int:
             raise ValueError("--coordinator assigns the shard itself; drop --shard")
         return _benchmark_distributed(args)
     if args.learner_devices > 1:
-        from algorithms.data_parallel import use_cpu_devices
+        from .data_parallel import use_cpu_devices
 
         use_cpu_devices(args.learner_devices)        # before JAX first runs
-    from algorithms.benchmark import run_benchmark
+    from .benchmark import run_benchmark
 
     total = int(float(args.total_steps)) if args.total_steps else None
     run_benchmark(args.out, args.algos, args.scenarios, args.seeds, total, args.eval_points, args.test_episodes,
@@ -257,7 +257,7 @@ def _benchmark_distributed(args) -> int:
             continue
         child.append(argv[i])
         i += 1
-    code = subprocess.run([sys.executable, "-m", "marbler_jax", *child, "--shard", f"{index}/{count}"]).returncode
+    code = subprocess.run([sys.executable, "-m", "marbler_jax_rl", *child, "--shard", f"{index}/{count}"]).returncode
     from jax.experimental import multihost_utils
 
     multihost_utils.sync_global_devices("marbler-jax benchmark done")
@@ -265,7 +265,7 @@ def _benchmark_distributed(args) -> int:
 
 
 def _report(args) -> int:
-    from algorithms.report import write_report
+    from .report import write_report
 
     written = write_report(args.results, args.out, reps=args.reps, results_md=args.results_md)
     print("\n".join(f"written: {p}" for p in written))
@@ -276,7 +276,7 @@ _MEMORY_NAMES = {"gru": "GRU", "mingru": "minimal GRU", "none": "feed-forward"}
 
 
 def _export(args) -> int:
-    from algorithms.export import export_policy
+    from .export import export_policy
 
     spec = export_policy(args.run, args.out, seed_index=args.seed_index, checkpoint=args.checkpoint,
                          bundle=args.bundle, episodes=args.episodes, bundle_seed=args.bundle_seed)
@@ -306,8 +306,8 @@ def _print_bundle(folder: Path) -> None:
 def _evaluate(args) -> int:
     import json
 
-    from algorithms.driver import atomic_write
-    from algorithms.evaluate import evaluate_run, markdown_table
+    from .driver import atomic_write
+    from .evaluate import evaluate_run, markdown_table
 
     result = evaluate_run(args.run, args.episodes, args.checkpoint, seed=args.seed, progress=not args.no_progress,
                           seed_selection="best" if args.best_seed else "all")
@@ -322,7 +322,7 @@ def _evaluate(args) -> int:
 
 
 def _quickstart(args) -> int:
-    from algorithms.driver import train
+    from .driver import train
 
     out = Path(args.out)
     if (out / "checkpoints").exists():
@@ -333,7 +333,7 @@ def _quickstart(args) -> int:
     result = train("simple_navigation", "ippo", 300_000, 2, out, hp={"lr": 1e-3})
     gif = out / "episode.gif"
     _episode_gif(out, gif)
-    from algorithms.export import export_policy
+    from .export import export_policy
 
     export_policy(out, out / "policy", checkpoint="final", bundle=out / "robotarium")
     better = result["trained"]["return"] > result["random"]["return"]
@@ -349,7 +349,7 @@ def _episode_gif(run: Path, gif: Path) -> None:
     """GIF of one greedy episode of the run's first seed."""
     import jax
 
-    from algorithms.driver import load_run
+    from .driver import load_run
     from marbler_jax.render import episode_frames, save_movie
 
     env, policy = load_run(run)
@@ -366,7 +366,7 @@ def _render(args) -> int:
         raise ValueError(f"--envs must be >= 1, got {args.envs}")
     target = Path(args.target)
     if (target / "config.json").exists():
-        from algorithms.driver import load_run
+        from .driver import load_run
 
         if args.set:
             raise ValueError("--set applies to a scenario name; a run renders with the settings it was trained with")
@@ -406,9 +406,9 @@ class _DefaultsFormatter(argparse.ArgumentDefaultsHelpFormatter):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from algorithms.benchmark import PAPER_ALGOS, PAPER_SCENARIOS
-    from algorithms.driver import ALGORITHMS
-    from algorithms.recipes import RECIPE_NAMES
+    from .benchmark import PAPER_ALGOS, PAPER_SCENARIOS
+    from .driver import ALGORITHMS
+    from .recipes import RECIPE_NAMES
     from marbler_jax import cbf, physics
 
     from marbler_jax import __version__
