@@ -43,11 +43,18 @@ def _rliable():
 
 
 def _bootstrap(score_dict: dict, func, reps: int, seed: int = 0):
-    """rliable's ``get_interval_estimates`` (95 % percentile CIs) with a fixed seed, reproducible."""
+    """rliable's ``get_interval_estimates`` (95 % percentile CIs), reproducible: its stratified bootstrap
+    draws run indices from numpy's global generator whatever ``random_state`` says, so that generator is
+    seeded for the call and restored after it."""
     rly, _ = _rliable()
-    with warnings.catch_warnings():      # arch deprecates the RandomState that rliable hands it
-        warnings.simplefilter("ignore", FutureWarning)
-        return rly.get_interval_estimates(score_dict, func, reps=reps, random_state=np.random.RandomState(seed))
+    saved = np.random.get_state()
+    np.random.seed(seed)
+    try:
+        with warnings.catch_warnings():      # arch deprecates the RandomState that rliable hands it
+            warnings.simplefilter("ignore", FutureWarning)
+            return rly.get_interval_estimates(score_dict, func, reps=reps, random_state=np.random.RandomState(seed))
+    finally:
+        np.random.set_state(saved)
 
 
 def run_scores(runs: dict, metric: str) -> np.ndarray:
@@ -114,7 +121,7 @@ def metric_table(results: dict, metric: str, reps: int) -> str | None:
             paper = PAPER.get(scenario, {}).get(algo, {}).get(metric)
             ok = reached(metric, best_mean, paper[0] if paper else None)
             steps = runs["run_0"][ABSOLUTE]["env_steps"][0]
-            rows.append(f"| {scenario} | {algo} | {len(runs)} | {steps / 1e6:g}M | {_fmt(iqm)} [{_fmt(low)}, {_fmt(high)}] "
+            rows.append(f"| {scenario} | {algo} | {len(runs)} | {steps / 1e6:.1f}M | {_fmt(iqm)} [{_fmt(low)}, {_fmt(high)}] "
                         f"| {_fmt(best_mean)} ± {_fmt(float(np.std(best)))} | "
                         f"{f'{paper[0]:g} ± {paper[1]:g}' if paper else '—'} | "
                         f"{'—' if ok is None else ('yes' if ok else '**no**')} |")
@@ -168,12 +175,12 @@ def plot_curves(scenario: str, runs_by_algo: dict, png: Path, reps: int) -> None
             lambda x: np.array([metrics.aggregate_iqm(x[..., j]) for j in range(x.shape[-1])]), reps)
         line, = ax.plot(steps, point[algo], lw=1.6, label=f"{algo} ({scores.shape[0]} seeds)")
         ax.fill_between(steps, interval[algo][0], interval[algo][1], color=line.get_color(), alpha=0.2)
-    for algo, values in PAPER.get(scenario, {}).items():
-        if algo in runs_by_algo:
-            ax.axhline(values["reward"][0], ls=":", lw=1, color="grey")
+        paper = PAPER.get(scenario, {}).get(algo)
+        if paper:
+            ax.axhline(paper["reward"][0], ls=":", lw=1.2, color=line.get_color())
     ax.set_xlabel("env steps per seed")
     ax.set_ylabel("greedy test reward (IQM, 95 % CI)")
-    ax.set_title(f"{scenario} (dotted: the paper's values)")
+    ax.set_title(f"{scenario} (dotted: the paper's reward, same colour)")
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()

@@ -51,6 +51,8 @@ def test_grid_canonicalises_and_shares_cells_between_processes():
 
 def test_iqm_and_its_interval_on_known_scores():
     iqm, low, high = report.iqm_ci(np.arange(8.0), reps=200)
+    scores = np.array([32.28, 32.62, 32.63, 32.75, 33.06])
+    assert len({report.iqm_ci(scores, reps=500) for _ in range(4)}) == 1     # the same report every time
     assert iqm == pytest.approx(3.5)              # the middle half: 2, 3, 4, 5
     assert low <= iqm <= high and low >= 0 and high <= 7
     assert report.iqm_ci(np.full(5, 2.5), reps=50) == pytest.approx((2.5, 2.5, 2.5))
@@ -85,7 +87,7 @@ def test_report_renders_tables_curves_and_improvement(tmp_path):
     assert "marbler-jax report results/marbler-table2 --results-md RESULTS.md" in page
     assert "](../curves_predator_capture_prey.png)" in page             # relative to the page
     assert "qmix_ns on predator_capture_prey" in page.split("Cells not in the results yet")[1]
-    assert "| predator_capture_prey | vdn | 2 | 0.0002M | 32.00 [" in text
+    assert "| predator_capture_prey | vdn | 2 | 0.0M | 32.00 [" in text
     assert "| 33.50 ± 0.50 | 33.25 ± 0.46 | yes |" in text       # best seed run_0 against the paper
     assert "| qmix | 0.00 [0.00, 0.00] | — |" in text              # P(qmix > vdn)
     assert (tmp_path / "curves_predator_capture_prey.png").stat().st_size > 1000
