@@ -30,8 +30,8 @@ import jax
 import numpy as np
 
 import marbler_jax
-from .driver import (ALGORITHMS, TESTS_FILE, atomic_write, build_config, has_setting, seed_best_scores,
-                               train)
+from .driver import (ALGORITHMS, TESTS_FILE, atomic_write, build_config, has_setting, make_tester,
+                     seed_best_scores, train)
 from .recipes import recipe
 from marbler_jax.registry import canonical_name
 
@@ -85,20 +85,22 @@ def training_seconds(metrics: list[dict], seeds: int) -> float:
 
 
 def cell_runs(run: Path, env, greedy_of_params, seeds: int, absolute_episodes: int, key) -> dict:
-    """The marl-eval ``{"run_<k>": ...}`` entries of a trained cell's run folder ``run``."""
-    from .evaluate import greedy_episodes, restore_params
+    """The marl-eval ``{"run_<k>": ...}`` entries of a trained cell's run folder ``run``: every seed's best
+    checkpoint plays ``absolute_episodes`` fresh greedy episodes, all seeds in one program."""
+    from .evaluate import restore_params
 
     tests = [json.loads(line) for line in (run / TESTS_FILE).read_text().splitlines() if line.strip()]
-    metrics = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines() if line.strip()]
-    best_scores = seed_best_scores([json.dumps(m) for m in metrics], seeds, tested=True)
-    best = restore_params(run, "best")
+    lines = [line for line in (run / "metrics.jsonl").read_text().splitlines() if line.strip()]
+    metrics = [json.loads(line) for line in lines]
+    best_scores = seed_best_scores(lines, seeds, tested=True)
+    absolute = make_tester(env, greedy_of_params, absolute_episodes)(restore_params(run, "best"),
+                                                                      jax.random.split(key, seeds))
+    absolute = jax.tree_util.tree_map(np.asarray, absolute)
     runs = {}
     for s in range(seeds):
         entry = {f"step_{i}": {"step_count": t["env_steps"], **{m: v[s] for m, v in t["episodes"].items()}}
                  for i, t in enumerate(tests)}
-        params = jax.tree_util.tree_map(lambda x: np.asarray(x[s]), best)
-        episodes = greedy_episodes(env, greedy_of_params(params), absolute_episodes, jax.random.fold_in(key, s))
-        entry[ABSOLUTE] = {m: [round(float(x), 5) for x in v] for m, v in episodes.items()}
+        entry[ABSOLUTE] = {m: [round(float(x), 5) for x in v[s]] for m, v in absolute.items()}
         entry[ABSOLUTE].update(best_test_return=[float(best_scores[s])], env_steps=[int(tests[-1]["env_steps"])],
                                train_seconds=[round(training_seconds(metrics, seeds), 1)])
         runs[f"run_{s}"] = entry

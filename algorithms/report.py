@@ -190,8 +190,8 @@ def plot_curves(scenario: str, runs_by_algo: dict, png: Path, reps: int) -> None
     tmp.replace(png)
 
 
-def report_markdown(results: dict, reps: int = 2000, image_prefix: str = "") -> str:
-    """The whole report as Markdown (``image_prefix``: the curves' folder relative to the document)."""
+def report_markdown(results: dict, reps: int = 2000) -> str:
+    """The whole report as Markdown, its curves linked as ``curves_<scenario>.png`` beside it."""
     tasks = results.get(ENV_NAME, {})
     if not tasks:
         raise ValueError("the results hold no cell yet; run marbler-jax benchmark first")
@@ -213,7 +213,7 @@ def report_markdown(results: dict, reps: int = 2000, image_prefix: str = "") -> 
         parts += ["### Cells not in the results yet", "", ", ".join(missing) + ".", ""]
     parts.append("### Sample efficiency and probability of improvement\n")
     for scenario in _ordered(tasks, SCENARIO_ORDER):
-        parts += [f"#### {scenario}", "", f"![{scenario}]({image_prefix}curves_{scenario}.png)", ""]
+        parts += [f"#### {scenario}", "", f"![{scenario}](curves_{scenario}.png)", ""]
         if len(tasks[scenario]) > 1:
             parts += [improvement_table(tasks[scenario], reps), ""]
     return "\n".join(parts)
@@ -254,12 +254,13 @@ def write_report(folder: str | Path, out: str | Path | None = None, reps: int = 
         plot_curves(scenario, runs_by_algo, png, reps)
         written.append(png)
     report = out / "report.md"
-    atomic_write(report, "## MARBLER benchmark\n\n" + report_markdown(results, reps))
+    body = report_markdown(results, reps)          # the bootstraps run once for both documents
+    atomic_write(report, "## MARBLER benchmark\n\n" + body)
     written.insert(0, report)
     if results_md:
         results_md = Path(results_md)
         prefix = Path(os.path.relpath(out.resolve(), results_md.resolve().parent)).as_posix() + "/"
-        atomic_write(results_md, RESULTS_HEAD + report_markdown(results, reps, image_prefix=prefix))
+        atomic_write(results_md, RESULTS_HEAD + body.replace("](curves_", f"]({prefix}curves_"))
         written.append(results_md)
     return written
 
