@@ -230,6 +230,19 @@ def _parse_shard(text: str | None) -> tuple[int, int]:
     return index, count
 
 
+def _without_options(argv: list[str], names: set[str]) -> list[str]:
+    """``argv`` without the options ``names`` and their values (``--name value`` or ``--name=value``)."""
+    out, skip_value = [], False
+    for arg in argv:
+        if skip_value:
+            skip_value = False
+        elif arg in names:
+            skip_value = True
+        elif arg.split("=", 1)[0] not in names:
+            out.append(arg)
+    return out
+
+
 def _benchmark_distributed(args) -> int:
     """Join JAX's distributed runtime (``--coordinator HOST:PORT`` with ``--num-processes`` and
     ``--process-id``, or ``auto`` where JAX detects the cluster, e.g. under SLURM) to learn this process's
@@ -244,19 +257,7 @@ def _benchmark_distributed(args) -> int:
     else:
         jax.distributed.initialize(args.coordinator, num_processes=args.num_processes, process_id=args.process_id)
     index, count = jax.process_index(), jax.process_count()
-    argv = [a for a in args.argv]
-    child = []
-    skip = {"--coordinator", "--num-processes", "--process-id"}
-    i = 0
-    while i < len(argv):
-        if argv[i] in skip:
-            i += 2
-            continue
-        if argv[i].split("=", 1)[0] in skip:
-            i += 1
-            continue
-        child.append(argv[i])
-        i += 1
+    child = _without_options(args.argv, {"--coordinator", "--num-processes", "--process-id"})
     code = subprocess.run([sys.executable, "-m", "marbler_jax_rl", *child, "--shard", f"{index}/{count}"]).returncode
     from jax.experimental import multihost_utils
 

@@ -169,8 +169,10 @@ def test_two_processes_share_the_grid_through_jax_distributed(tmp_path):
 
 
 def test_shard_flag_is_checked():
-    from marbler_jax_rl.cli import _parse_shard
+    from marbler_jax_rl.cli import _parse_shard, _without_options
 
+    assert _without_options(["benchmark", "--coordinator", "h:1", "--process-id=1", "--seeds", "2"],
+                            {"--coordinator", "--process-id"}) == ["benchmark", "--seeds", "2"]
     assert _parse_shard("1/3") == (1, 3) and _parse_shard(None) == (0, 1)
     for bad in ("3/3", "a/b", "1"):
         with pytest.raises(ValueError, match="--shard"):
