@@ -55,6 +55,17 @@ exploit the structure:
 * ``solve(..., warm_start=info.multipliers)`` starts from an earlier solve's multipliers and the
   primal point ``u_hat - A^T l`` they give (a consecutive control refresh barely moves the optimum).
 
+Today's Robotarium (rps v2, b23069e; ``shared/spec/robotarium.md`` section 10.11) has its own kinds
+``"si_v2"``, ``"si_boundary_v2"``, ``"uni_v2"`` and ``"uni_boundary_v2"``: ``u_nom`` is not capped, each
+robot instead gets eight magnitude rows ``n_j . u_k <= c_j`` (a regular octagon of unit normals from +x,
+``c_j = magnitude_limit cos(pi/8)``, except the first row of ``si_v2``/``uni_v2`` at ``magnitude_limit``);
+the unicycle kinds use radius ``safety_radius + 2 projection_distance`` and map back without clipping
+omega; a team of fewer than two robots is returned unchanged; and when the QP has no solution
+(``CertificateInfo.stopped``: the fixed budget's iterate still violates a row by more than
+:data:`V2_TOLERANCE` and standing still violates one too) every robot of the team gets zero velocity,
+as rps v2 commands when CVXOPT reports no optimum. ``uni_boundary_v2`` takes
+``obstacles [..., M, 2]``: points entered as extra robots with zero nominal velocity, as rps v2 does.
+
 The solver never divides by zero: rows with ``e = 0`` (coincident robots) are skipped and reported.
 If the constraints are infeasible (coincident robots, boxes with lo > hi, or conflicting walls)
 the fixed budget still returns finite velocities, and ``CertificateInfo.feasible`` is False.
@@ -71,10 +82,21 @@ import numpy as np
 from marbler_jax import controllers
 from marbler_jax.xp import fori_loop, from_minor, is_jax, namespace, result_dtype, to_minor, vmap_in_place
 
-SI_KINDS = ("si", "si2", "si_boundary")
+V2_KINDS = ("si_v2", "si_boundary_v2", "uni_v2", "uni_boundary_v2")
+SI_KINDS = ("si", "si2", "si_boundary", "si_v2", "si_boundary_v2")
 DD_KINDS = ("uni_dd", "uni_dd_boundary")
-UNI_KINDS = ("uni", "uni2", "uni_boundary") + DD_KINDS
+UNI_KINDS = ("uni", "uni2", "uni_boundary", "uni_v2", "uni_boundary_v2") + DD_KINDS
 KINDS = SI_KINDS + UNI_KINDS
+
+# rps v2's magnitude polygon: 8 unit normals per robot, 45 degrees apart starting at +x.
+_R = 1 / math.sqrt(2)
+_POLYGON_NORMALS = ((1.0, 0.0), (_R, _R), (0.0, 1.0), (-_R, _R), (-1.0, 0.0), (-_R, -_R), (0.0, -1.0), (_R, -_R))
+
+# Relative feasibility tolerance of the v2 kinds: a team whose fixed-budget iterate violates a row by more
+# than ~3e-3 m/s (x (1 + max |u|)) is infeasible and stopped, as rps v2 stops it when CVXOPT (feastol 1e-2)
+# reports no optimum. On the golden cases infeasible teams violate by >= 8e-3 m/s at any budget, feasible
+# ones end below 1e-3 within the default sweeps.
+V2_TOLERANCE = 2.5e-3
 
 # rps 6bb184e defaults per kind.
 _DEFAULTS: dict[str, dict[str, Any]] = {
@@ -93,6 +115,13 @@ _DEFAULTS: dict[str, dict[str, Any]] = {
     "uni_dd_boundary": dict(barrier_gain=150.0, safety_radius=0.17, projection_distance=0.05, disturbance=5.0,
                             wheel_vel_limit=12.5, base_length=0.105, wheel_radius=0.016,
                             boundary_points=(-1.6, 1.6, -1.0, 1.0)),
+    # rps v2 (b23069e): create_si_barrier_certificate(_with_boundary), create_uni_barrier_certificate(_with_boundary)
+    "si_v2": dict(barrier_gain=100.0, safety_radius=0.15, magnitude_limit=0.2),
+    "si_boundary_v2": dict(barrier_gain=100.0, safety_radius=0.15, magnitude_limit=0.2,
+                           boundary_points=(-1.7, 1.7, -1.1, 1.1)),
+    "uni_v2": dict(barrier_gain=100.0, safety_radius=0.15, projection_distance=0.05, magnitude_limit=0.2),
+    "uni_boundary_v2": dict(barrier_gain=150.0, safety_radius=0.12, projection_distance=0.03, magnitude_limit=0.2,
+                            boundary_points=(-1.6, 1.6, -1.0, 1.0)),
 }
 
 
@@ -106,6 +135,8 @@ class Multipliers(NamedTuple):
         wheel_lower, wheel_upper: ``[..., N, 2]`` multipliers of the wheel-speed limits
             ``-limit <= omega_wheel`` and ``omega_wheel <= limit`` (left, right wheel; ``uni_dd*``
             kinds), else ``None``.
+        polygon: ``[..., N, 8]`` multipliers of each robot's eight magnitude rows (``*_v2`` kinds),
+            else ``None``.
     """
 
     pairs: Any
@@ -113,6 +144,7 @@ class Multipliers(NamedTuple):
     upper: Any = None
     wheel_lower: Any = None
     wheel_upper: Any = None
+    polygon: Any = None
 
 
 class CertificateInfo(NamedTuple):
@@ -127,12 +159,17 @@ class CertificateInfo(NamedTuple):
         active: number of rows with a positive multiplier.
         multipliers: the final :class:`Multipliers`; pass them as ``warm_start`` to the next solve
             of a nearby problem (the next control refresh of the same team).
+        stopped: ``*_v2`` kinds: the team was given zero velocity because its QP has no solution
+            (not ``feasible`` although zero velocity is not an admissible input either: every team
+            where standing still satisfies every row has a solution, however far the fixed budget got);
+            ``None`` for the other kinds.
     """
 
     max_violation: Any
     feasible: Any
     active: Any
     multipliers: Any = None
+    stopped: Any = None
 
 
 @functools.lru_cache(maxsize=None)
@@ -156,14 +193,20 @@ def round_robin(n: int) -> tuple[np.ndarray, np.ndarray]:
     return np.array(firsts, np.int32).reshape(shape), np.array(seconds, np.int32).reshape(shape)
 
 
-def default_iterations(n: int) -> int:
-    """Sweeps used when ``iterations`` is not given: ``20 + 4 N`` (at most 250).
+def default_iterations(n: int, kind: str = "si2") -> int:
+    """Sweeps used when ``iterations`` is not given: ``20 + 4 N`` (at most 250); ``60 + 12 N`` (at
+    most 750) for the ``*_v2`` kinds.
 
     Chosen on the rps tight-QP golden cases, where every kind then matches >= 99 % of the cases
     for N <= 20 (the clustered wall cases at N = 6 need ~45 sweeps, the stiff ``*2`` cases at
-    N = 20 about 100). Callers with easier problems (robots kept apart by the certificate itself,
-    as inside the env) can pass fewer ``iterations``.
+    N = 20 about 100). The v2 kinds decide infeasibility from the last iterate, so a feasible team
+    must be converged below :data:`V2_TOLERANCE` by then: with 1.5x the sweeps every feasible golden
+    v2 case ends below 1e-3 m/s, and 3x also converges a 20-robot ring whose pair rows all bind
+    (``tests/test_cbf_v2.py``: at 150 sweeps it still violated by 6e-3 m/s). Callers with easier problems (robots kept apart by
+    the certificate itself, as inside the env) can pass fewer ``iterations``.
     """
+    if kind in V2_KINDS:
+        return int(min(60 + 12 * n, 750))
     return int(min(20 + 4 * n, 250))
 
 
@@ -197,7 +240,7 @@ class Barrier:
     wheel_radius: float | None = None       # uni_dd kinds [m]
     iterations: int | None = None
     relaxation: float | None = None
-    tolerance: float = 1e-4
+    tolerance: float = 1e-4                 # relative; the v2 kinds default to V2_TOLERANCE
 
     @property
     def is_unicycle(self) -> bool:
@@ -208,23 +251,38 @@ class Barrier:
         return self.kind in DD_KINDS
 
     @property
+    def is_v2(self) -> bool:
+        """rps v2 semantics: magnitude polygon rows instead of capping ``u_nom``, no omega clip, teams
+        of fewer than two robots pass through, and zero velocity for the whole team when infeasible."""
+        return self.kind in V2_KINDS
+
+    @property
     def si_radius(self) -> float:
-        """Safety radius of the SI problem (``safety_radius + projection_distance`` for the rps
-        unicycle kinds; the ``uni_dd`` kinds apply ``safety_radius`` to the projection points)."""
-        if self.is_differential_drive:
+        """Safety radius of the SI problem: ``safety_radius + projection_distance`` for the rps
+        2023 unicycle kinds, ``safety_radius + 2 projection_distance`` for ``uni*_v2``; the
+        ``uni_dd`` kinds apply ``safety_radius`` to the projection points."""
+        if self.is_differential_drive or not self.is_unicycle:
             return self.safety_radius
-        return self.safety_radius + (self.projection_distance or 0.0) * self.is_unicycle
+        return self.safety_radius + self.projection_distance * (2 if self.is_v2 else 1)
+
+    def polygon_limits(self) -> tuple[float, ...]:
+        """Right-hand sides of the eight magnitude rows (``*_v2`` kinds; rps v2 gives the first row
+        of ``si_v2``/``uni_v2`` the full ``magnitude_limit`` and every other row ``cos(pi/8)`` of it)."""
+        m = self.magnitude_limit
+        inner = m * math.cos(math.pi / 8)
+        first = inner if self.boundary_points is not None else m
+        return (first,) + (inner,) * 7
 
     def sweeps(self, n: int) -> int:
         """Coordinate-ascent sweeps used for a team of ``n`` robots."""
-        return self.iterations if self.iterations is not None else default_iterations(n)
+        return self.iterations if self.iterations is not None else default_iterations(n, self.kind)
 
     def omega(self, n: int) -> float:
         """Over-relaxation factor used for a team of ``n`` robots."""
         return self.relaxation if self.relaxation is not None else default_relaxation(n)
 
-    def __call__(self, u_nom, x):
-        return self.solve(u_nom, x)[0]
+    def __call__(self, u_nom, x, obstacles=None):
+        return self.solve(u_nom, x, obstacles=obstacles)[0]
 
     def initial_multipliers(self, n: int, batch_shape=(), dtype=np.float32, xp=np) -> Multipliers:
         """Zero :class:`Multipliers` for a team of ``n`` robots (a cold start)."""
@@ -232,15 +290,19 @@ class Barrier:
         per_robot = xp.zeros(tuple(batch_shape) + (n, 2), dtype)
         box = None if self.boundary_points is None else per_robot
         wheels = per_robot if self.is_differential_drive else None
-        return Multipliers(xp.zeros(tuple(batch_shape) + (rounds, half), dtype), box, box, wheels, wheels)
+        polygon = xp.zeros(tuple(batch_shape) + (n, 8), dtype) if self.is_v2 else None
+        return Multipliers(xp.zeros(tuple(batch_shape) + (rounds, half), dtype), box, box, wheels, wheels, polygon)
 
-    def solve(self, u_nom, x, warm_start: Multipliers | None = None):
+    def solve(self, u_nom, x, warm_start: Multipliers | None = None, obstacles=None):
         """Certify ``u_nom`` at state ``x``; returns ``(u, CertificateInfo)``.
 
         ``warm_start``: multipliers of a previous solve of this barrier for the same team
         (``info.multipliers``), e.g. the last control refresh. The QP's solution does not depend
         on it (the problem is strictly convex); it only starts the sweeps nearer to it, so fewer
         ``iterations`` reach the same accuracy when the robots moved little since.
+        ``obstacles [..., M, 2]`` (``uni_boundary_v2`` only, as rps v2): points the robots' projection
+        points keep clear of, entered into the QP as extra robots with zero nominal velocity (their
+        multipliers are part of ``info.multipliers``: warm-start with the same ``M``).
         """
         xp = namespace(u_nom, x)
         dtype = result_dtype(xp, u_nom, x)
@@ -252,28 +314,66 @@ class Barrier:
                 f"barrier {self.kind!r} expects x [..., N, {state_dim}] and u_nom [..., N, 2]; "
                 f"got x {tuple(x.shape)} and u_nom {tuple(u_nom.shape)}"
             )
+        team = x.shape[-2]
+        if obstacles is not None:
+            if self.kind != "uni_boundary_v2":
+                raise ValueError(f"barrier {self.kind!r} takes no obstacles (only 'uni_boundary_v2' does, as rps v2)")
+            obstacles = xp.asarray(obstacles, dtype=dtype)
+            if obstacles.ndim < 2 or obstacles.shape[-1] != 2 or obstacles.shape[:-2] != x.shape[:-2]:
+                raise ValueError(f"obstacles must be [..., M, 2] with the batch shape of x {tuple(x.shape[:-2])}; "
+                                 f"got {tuple(obstacles.shape)}")
+            team += obstacles.shape[-2]
         if warm_start is not None:
             warm_start = Multipliers(*(None if w is None else xp.asarray(w, dtype=dtype) for w in warm_start))
-            expected = self.initial_multipliers(x.shape[-2], x.shape[:-2], xp=np)
+            expected = self.initial_multipliers(team, x.shape[:-2], xp=np)
             shapes = [None if w is None else tuple(w.shape) for w in warm_start]
             if shapes != [None if w is None else tuple(w.shape) for w in expected]:
                 raise ValueError(f"warm_start shapes {shapes} do not match this barrier's multipliers for "
                                  f"x {tuple(x.shape)}: {[None if w is None else w.shape for w in expected]}")
-        if is_jax(u_nom, x):
-            return _jax_solver(self)(u_nom, x, warm_start)
-        return self._solve(u_nom, x, warm_start)
+        if is_jax(u_nom, x, obstacles):
+            return _jax_solver(self)(u_nom, x, warm_start, obstacles)
+        return self._solve(u_nom, x, warm_start, obstacles)
 
-    def _solve(self, u_nom, x, warm_start=None):
+    def _solve(self, u_nom, x, warm_start=None, obstacles=None):
+        if self.is_v2 and x.shape[-2] < 2:      # rps v2 returns a lone robot's command unchanged
+            return u_nom, _pass_through(self, u_nom, x.shape[-2])
         if not self.is_unicycle:
-            return solve_si(self, u_nom, x, warm_start)
+            u, info = solve_si(self, u_nom, x, warm_start)
+            return _zero_if_infeasible(self, u, info)
         d = self.projection_distance
         points = controllers.uni_to_si_states(x, d)
         dxi = controllers.uni_to_si_dynamics(u_nom, x, d)
         if self.is_differential_drive:   # exact inverse of uni_to_si_dynamics: no omega clip
             dxi, info = solve_si(self, dxi, points, warm_start, headings=x[..., 2])
             return controllers.si_to_uni_mapping(dxi, x, d, angular_velocity_limit=math.inf), info
+        if not self.is_v2:
+            dxi, info = solve_si(self, dxi, points, warm_start)
+            return controllers.si_to_uni_mapping(dxi, x, d), info
+        n = x.shape[-2]
+        if obstacles is not None:
+            xp = namespace(dxi, obstacles)
+            points = xp.concatenate([points, obstacles], axis=-2)
+            dxi = xp.concatenate([dxi, xp.zeros_like(obstacles)], axis=-2)
         dxi, info = solve_si(self, dxi, points, warm_start)
-        return controllers.si_to_uni_mapping(dxi, x, d), info
+        u = controllers.si_to_uni_mapping(dxi[..., :n, :], x, d, angular_velocity_limit=math.inf)
+        return _zero_if_infeasible(self, u, info)
+
+
+def _pass_through(barrier: Barrier, u_nom, n: int) -> CertificateInfo:
+    """Diagnostics of a team that is not solved (rps v2: fewer than two robots)."""
+    xp = namespace(u_nom)
+    zero = xp.zeros(u_nom.shape[:-2], dtype=u_nom.dtype)
+    return CertificateInfo(zero, zero == 0, zero.astype(xp.int32),
+                           barrier.initial_multipliers(n, u_nom.shape[:-2], u_nom.dtype, xp), zero != 0)
+
+
+def _zero_if_infeasible(barrier: Barrier, u, info: CertificateInfo):
+    """rps v2: a team whose QP has no solution (``info.stopped``) gets zero velocity for every robot;
+    other kinds return ``u`` as it is."""
+    if not barrier.is_v2:
+        return u, info
+    xp = namespace(u)
+    return xp.where(info.stopped[..., None, None], xp.zeros_like(u), u), info
 
 
 @functools.lru_cache(maxsize=None)
@@ -288,16 +388,19 @@ def make_barrier(kind: str = "si2", **params) -> Barrier:
 
     Args:
         kind: one of ``"si"``, ``"si2"``, ``"si_boundary"``, ``"uni"``, ``"uni2"``, ``"uni_boundary"``,
-            ``"uni_dd"``, ``"uni_dd_boundary"``.
+            ``"uni_dd"``, ``"uni_dd_boundary"`` (rps 2023/2024) or ``"si_v2"``, ``"si_boundary_v2"``,
+            ``"uni_v2"``, ``"uni_boundary_v2"`` (rps v2).
         safety_radius, barrier_gain, unsafe_barrier_gain, magnitude_limit, projection_distance,
-            boundary_points: as in rps (defaults per kind, rps 6bb184e); ``boundary_points`` is
+            boundary_points: as in rps (defaults per kind, rps 6bb184e or v2; v2's
+            ``velocity_magnitude_limit`` is ``magnitude_limit`` here); ``boundary_points`` is
             ``(x_min, x_max, y_min, y_max)``.
         disturbance, wheel_vel_limit, base_length, wheel_radius: the ``uni_dd`` kinds' wheel model
             (rps-2023/2024 defaults 5 rad/s, 12.5 rad/s, 0.105 m, 0.016 m).
         iterations: solver sweeps (static); default grows with N (:func:`default_iterations`).
         relaxation: over-relaxation factor in (0, 2) of the coordinate-ascent sweeps; default
             :func:`default_relaxation`.
-        tolerance: relative feasibility tolerance used by ``CertificateInfo.feasible``.
+        tolerance: relative feasibility tolerance used by ``CertificateInfo.feasible`` (default 1e-4;
+            :data:`V2_TOLERANCE` for the v2 kinds, where it decides which teams are stopped).
     """
     if kind not in _DEFAULTS:
         raise ValueError(f"unknown barrier kind {kind!r}; choose one of {list(KINDS)}")
@@ -313,7 +416,7 @@ def make_barrier(kind: str = "si2", **params) -> Barrier:
     limit = cfg.get("magnitude_limit")
     if not gain > 0:
         raise ValueError(f"barrier_gain must be > 0, got {gain}")
-    min_radius = 0.12 if kind in SI_KINDS else 0.0
+    min_radius = 0.12 if kind in SI_KINDS and kind not in V2_KINDS else 0.0     # rps 2023 asserts it, v2 does not
     if not radius >= min_radius or not math.isfinite(radius):
         raise ValueError(f"safety_radius must be >= {min_radius} for {kind!r}, got {radius}")
     if limit is not None and not 0 < float(limit) <= 0.2:
@@ -343,13 +446,16 @@ def make_barrier(kind: str = "si2", **params) -> Barrier:
     relaxation = cfg.get("relaxation")
     if relaxation is not None and not 0 < float(relaxation) < 2:
         raise ValueError(f"relaxation must be in (0, 2), got {relaxation}")
+    tolerance = cfg.get("tolerance")
+    if tolerance is not None and not (0 < float(tolerance) < 1):
+        raise ValueError(f"tolerance must be in (0, 1) (relative feasibility tolerance), got {tolerance}")
     return Barrier(
         kind=kind, safety_radius=radius, barrier_gain=gain, magnitude_limit=None if limit is None else float(limit),
         unsafe_barrier_gain=None if unsafe is None else float(unsafe),
         projection_distance=None if proj is None else float(proj), boundary_points=bounds,
         iterations=None if iterations is None else int(iterations),
         relaxation=None if relaxation is None else float(relaxation),
-        tolerance=float(cfg.get("tolerance", 1e-4)), **wheel,
+        tolerance=float(cfg.get("tolerance", V2_TOLERANCE if kind in V2_KINDS else 1e-4)), **wheel,
     )
 
 
@@ -450,7 +556,7 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
     """
     xp = namespace(u_nom, positions)
     n = positions.shape[-2]
-    if barrier.magnitude_limit is None:
+    if barrier.magnitude_limit is None or barrier.is_v2:   # v2 limits the magnitude by QP rows instead
         u_hat = u_nom
     else:
         u_hat = controllers.cap_norm(u_nom, barrier.magnitude_limit)
@@ -475,8 +581,8 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
     bs = b * (0.5 * inv_norm)
     order = _polygon(n)
 
-    def layout(v):  # [N, 2, B] robot order -> [N', 2, B] polygon order (phantom zero)
-        return xp.concatenate([v, pad2], axis=0)[order]
+    def layout(v):  # [N, k, B] robot order -> [N', k, B] polygon order (phantom zero)
+        return xp.concatenate([v, xp.zeros((m - n,) + v.shape[1:], dtype=dtype)], axis=0)[order]
 
     def robot_order(v):  # inverse of layout (the map is its own inverse)
         return v[order][:n]
@@ -492,6 +598,9 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
         dir_l, dir_r = layout(c_left), layout(c_right)
         inv_c2 = 1 / wheel_norm2
         limit = barrier.wheel_vel_limit
+    polygon = barrier.is_v2
+    if polygon:
+        caps = barrier.polygon_limits()
     omega = barrier.omega(n)
 
     def box_step(u, lam_lo, lam_hi, w):
@@ -507,8 +616,17 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
         step_lo = xp.maximum(-lam_lo, w * (-limit - xp.sum(direction * u, axis=1)) * inv_c2)
         return u + direction * step_lo[:, None], lam_lo + step_lo, lam_hi + step_hi
 
+    def polygon_step(u, lam_poly, w):
+        """Each robot's eight magnitude rows ``n_j . u <= c_j`` (unit normals), one after another."""
+        lam_poly = list(lam_poly)
+        for j, ((cx, cy), cap) in enumerate(zip(_POLYGON_NORMALS, caps)):
+            step = xp.maximum(-lam_poly[j], w * (cx * u[:, 0] + cy * u[:, 1] - cap))
+            lam_poly[j] = lam_poly[j] + step
+            u = u - xp.stack([cx * step, cy * step], axis=1)
+        return u, tuple(lam_poly)
+
     def sweep(i, carry):
-        state, lam, box, wheels = carry
+        state, lam, box, wheels, lam_poly = carry
         # The first sweep is plain Gauss-Seidel: it solves single-active-constraint problems exactly.
         # So is the last for the uni_dd kinds, whose wheel limits can make the QP infeasible: an
         # over-relaxed final step would throw the output past the wheel limits it just enforced.
@@ -531,7 +649,9 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
             state, l_lo, l_hi = slab_step(state, wheels[0], wheels[1], dir_l, w)
             state, r_lo, r_hi = slab_step(state, wheels[2], wheels[3], dir_r, w)
             wheels = (l_lo, l_hi, r_lo, r_hi)
-        return state, tuple(lam), tuple(box), wheels
+        if polygon:
+            state, lam_poly = polygon_step(state, lam_poly, w)
+        return state, tuple(lam), tuple(box), wheels, lam_poly
 
     u0 = to_minor(u_hat, nb, xp)  # [N, 2, B]
     lam0 = xp.zeros((rounds, half, flat_b), dtype=dtype)
@@ -539,6 +659,7 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
     zero_wheel = xp.zeros((m, flat_b), dtype=dtype)
     box0 = (zero_box,) * 2 if boxed else ()
     wheels0 = (zero_wheel,) * 4 if wheeled else ()
+    poly0 = (zero_wheel,) * 8 if polygon else ()
     if warm_start is not None:
         # Rows that cannot act (phantom, coincident robots) start at zero; u0 = u_hat - A^T lambda0.
         lam_w = xp.maximum(to_minor(warm_start.pairs, nb, xp), 0) * (2 * d2 * inv_norm)  # scaled by 2|e|
@@ -558,10 +679,16 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
             u0 = u0 + c_left * net[:, 0] + c_right * net[:, 1]
             w_lo, w_hi = layout(w_lo), layout(w_hi)
             wheels0 = (w_lo[:, 0], w_hi[:, 0], w_lo[:, 1], w_hi[:, 1])
+        if polygon:
+            p_w = xp.maximum(to_minor(warm_start.polygon, nb, xp), 0)     # [N, 8, B]
+            normals = xp.asarray(_POLYGON_NORMALS, dtype=dtype)            # [8, 2]
+            u0 = u0 - xp.einsum("njb,jc->ncb", p_w, normals)
+            p_w = layout(p_w)
+            poly0 = tuple(p_w[:, j] for j in range(8))
     sweeps = barrier.sweeps(n)
     last = sweeps - 1
-    init = (layout(u0), tuple(lam0[r] for r in range(rounds)), box0, wheels0)
-    state, lam, box, wheels = fori_loop(xp, 0, sweeps, sweep, init)
+    init = (layout(u0), tuple(lam0[r] for r in range(rounds)), box0, wheels0, poly0)
+    state, lam, box, wheels, lam_poly = fori_loop(xp, 0, sweeps, sweep, init)
     # (m - 1) turns per sweep bring the slots back to the polygon order of the start.
     u = robot_order(state)                                                # [N, 2, B]
     lam = xp.stack(lam, axis=0) * (0.5 * inv_norm)                          # [R, H, B], unscaled
@@ -571,16 +698,19 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
         l_lo, l_hi, r_lo, r_hi = (robot_order(v) for v in wheels)
         wheels = (xp.stack([l_lo, r_lo], axis=1), xp.stack([l_hi, r_hi], axis=1))   # [N, 2 wheels, B]
         wheel_rows = (c_left, c_right, wheel_norm2) + wheels
-    info = _diagnostics(barrier, u, e, b, d2, valid, lam, lo, hi, box, xp, wheel_rows)
-    info = CertificateInfo(*(v.reshape(batch) for v in info[:3]))
+    poly = robot_order(xp.stack(lam_poly, axis=1)) if polygon else None    # [N, 8, B]
+    info = _diagnostics(barrier, u, e, b, d2, valid, lam, lo, hi, box, xp, wheel_rows, poly)
+    info = CertificateInfo(*(v.reshape(batch) for v in info[:3]),
+                           stopped=None if info.stopped is None else info.stopped.reshape(batch))
     unbatch = lambda v: from_minor(v, batch, xp)  # noqa: E731
     lower, upper = (unbatch(v) for v in box) if boxed else (None, None)
     wheel_lower, wheel_upper = (unbatch(v) for v in wheels) if wheeled else (None, None)
-    multipliers = Multipliers(unbatch(lam), lower, upper, wheel_lower, wheel_upper)
+    multipliers = Multipliers(unbatch(lam), lower, upper, wheel_lower, wheel_upper,
+                              unbatch(poly) if polygon else None)
     return unbatch(u), info._replace(multipliers=multipliers)
 
 
-def _diagnostics(barrier, u, e, b, d2, valid, lam, lo, hi, box, xp, wheel_rows=None):
+def _diagnostics(barrier, u, e, b, d2, valid, lam, lo, hi, box, xp, wheel_rows=None, poly=None):
     """Violation of every row at the returned ``u [N, 2, B]`` (not only the rows the solver touched);
     batch-minor like :func:`solve_si`'s internals, each result ``[B]``."""
     n, _, flat_b = u.shape
@@ -600,20 +730,31 @@ def _diagnostics(barrier, u, e, b, d2, valid, lam, lo, hi, box, xp, wheel_rows=N
         worst = xp.zeros((flat_b,), dtype=u.dtype)
         active = xp.zeros((flat_b,), dtype=xp.int32)
         degenerate = worst > 0
+    # every right-hand side >= 0: standing still is admissible, so the QP has a solution
+    zero_admissible = xp.all((b >= 0) | ~valid[:, :, None], axis=rows) if first.size else worst == 0
     if lo is not None:
         lam_lo, lam_hi = box
         worst = xp.maximum(worst, xp.max(xp.maximum(u - hi, lo - u), axis=rows))
         active = active + xp.sum((lam_lo > 0) | (lam_hi > 0), axis=rows)
+        zero_admissible = zero_admissible & xp.all((lo <= 0) & (hi >= 0), axis=rows)
     if wheel_rows is not None:   # |c . u| <= limit, violation as a distance along c
         c_left, c_right, norm2, wheel_lo, wheel_hi = wheel_rows
         speeds = xp.stack([xp.sum(c_left * u, axis=1), xp.sum(c_right * u, axis=1)], axis=1)   # [N, 2, B]
         wheel_viol = (xp.abs(speeds) - barrier.wheel_vel_limit) / math.sqrt(norm2)
         worst = xp.maximum(worst, xp.max(wheel_viol, axis=rows))
         active = active + xp.sum((wheel_lo > 0) | (wheel_hi > 0), axis=rows)
+    if poly is not None:         # n_j . u <= c_j, unit normals
+        normals = xp.asarray(_POLYGON_NORMALS, dtype=u.dtype)                            # [8, 2]
+        caps = xp.asarray(barrier.polygon_limits(), dtype=u.dtype)[None, :, None]
+        poly_viol = xp.einsum("jc,ncb->njb", normals, u) - caps                         # [N, 8, B]
+        worst = xp.maximum(worst, xp.max(poly_viol, axis=rows))
+        active = active + xp.sum(poly > 0, axis=rows)
     scale = 1 + xp.max(xp.abs(u), axis=rows)
     feasible = (worst <= barrier.tolerance * scale) & ~degenerate
-    return CertificateInfo(worst, feasible, active)
+    stopped = ~feasible & ~zero_admissible if barrier.is_v2 else None
+    return CertificateInfo(worst, feasible, active, stopped=stopped)
 
 
 __all__ = ["make_barrier", "Barrier", "CertificateInfo", "Multipliers", "KINDS", "SI_KINDS", "UNI_KINDS", "DD_KINDS",
+           "V2_KINDS", "V2_TOLERANCE",
            "round_robin", "default_iterations", "default_relaxation", "solve_si"]
