@@ -48,23 +48,27 @@ def barrier_for(config, num_agents: int):
     """The SI barrier for ``config.barrier_certificate`` (``None`` when ``"none"``).
 
     ``"safe"`` is MARBLER's default (certificate2 with safety radius 0.2), ``"default"`` MARBLER's
-    ``barrier_certificate: default`` (certificate, radius 0.17); other names are
-    :func:`marbler_jax.cbf.make_barrier` kinds. Iterations: ``config.cbf_iterations`` or
-    :func:`default_cbf_iterations`; relaxation: ``config.cbf_relaxation`` or :data:`ENV_RELAXATION`.
+    ``barrier_certificate: default`` (certificate, radius 0.17), ``"safe_v2"`` today's Robotarium
+    certificate (``si_v2``) at MARBLER's radius 0.2; other names are :func:`marbler_jax.cbf.make_barrier`
+    kinds. Iterations: ``config.cbf_iterations`` or :func:`default_cbf_iterations` (the v2 kinds:
+    :func:`marbler_jax.cbf.default_iterations`, since they stop a team whose last iterate is not
+    feasible, a decision that needs a converged solve); relaxation: ``config.cbf_relaxation`` or
+    :data:`ENV_RELAXATION`.
     """
     kind = config.barrier_certificate
     if kind == "none":
         return None
+    cbf_kind = {"safe": "si2", "default": "si", "safe_v2": "si_v2"}.get(kind, kind)
     iterations = config.cbf_iterations
-    if iterations is None:
+    if iterations is None and cbf_kind in cbf.V2_KINDS:
+        iterations = cbf.default_iterations(num_agents, cbf_kind)
+    elif iterations is None:
         iterations = default_cbf_iterations(num_agents, config.warm_start_barrier)
     relaxation = ENV_RELAXATION if config.cbf_relaxation is None else config.cbf_relaxation
     solver = dict(iterations=iterations, relaxation=relaxation)
-    if kind == "safe":
-        return cbf.make_barrier("si2", safety_radius=0.2, **solver)
-    if kind == "default":
-        return cbf.make_barrier("si", **solver)
-    return cbf.make_barrier(kind, **solver)
+    if kind in ("safe", "safe_v2"):
+        return cbf.make_barrier(cbf_kind, safety_radius=0.2, **solver)
+    return cbf.make_barrier(cbf_kind, **solver)
 
 
 def control(poses, goals, barrier):

@@ -256,3 +256,31 @@ def test_batched_auto_reset_resets_exactly_the_finished_envs(finished):
     np.testing.assert_allclose(obs, ref_obs, atol=1e-6)
     jax.tree_util.tree_map(lambda a, b: np.testing.assert_allclose(a, b, atol=1e-6), new_state, ref_state)
     np.testing.assert_array_equal(new_state.step, np.where(done, 0, state.step + 1))
+
+
+def test_robotarium_setting_picks_physics_and_barrier_together():
+    v2 = marbler_jax.make("predator_capture_prey", robotarium="v2")
+    assert (v2.config.physics, v2.config.barrier_certificate) == ("robotarium", "safe_v2")
+    assert v2.barrier.kind == "si_v2" and v2.barrier.safety_radius == 0.2
+    old = marbler_jax.make("predator_capture_prey", robotarium="2023")
+    assert (old.config.physics, old.config.barrier_certificate, old.barrier.kind) == ("marbler", "safe", "si2")
+    default = marbler_jax.make("predator_capture_prey")
+    assert default.config.robotarium is None and default.barrier.kind == "si2"
+    # the same value given twice is fine; a contradiction or an unknown simulator is one clear error
+    marbler_jax.make("predator_capture_prey", robotarium="v2", physics="robotarium")
+    with pytest.raises(ValueError, match="robotarium='v2' uses physics='robotarium', but physics='marbler'"):
+        marbler_jax.make("predator_capture_prey", robotarium="v2", physics="marbler")
+    with pytest.raises(ValueError, match="robotarium='2024' is not one of"):
+        marbler_jax.make("predator_capture_prey", robotarium="2024")
+
+
+def test_v2_env_stops_a_team_the_certificate_cannot_make_safe():
+    # Two robots of a v2 env placed 5 mm apart: separating them as fast as the radius demands takes
+    # 0.64 m/s, beyond the 0.2 m/s rows, so rps v2's QP has no solution and no robot of the team moves
+    # this refresh; the same placement under MARBLER's certificate is pushed apart instead.
+    poses = jnp.array([[0.0, 0.0, 0.0], [0.005, 0.0, 0.0], [1.0, 0.5, 0.0], [-1.0, -0.5, 0.0]])
+    goals = jnp.array([[0.5, 0.0], [0.5, 0.0], [1.2, 0.5], [-1.2, -0.5]])
+    v2 = marbler_jax.make("predator_capture_prey", robotarium="v2")
+    np.testing.assert_array_equal(control_loop.control(poses, goals, v2.barrier), 0.0)
+    old = marbler_jax.make("predator_capture_prey")
+    assert float(jnp.abs(control_loop.control(poses, goals, old.barrier)).max()) > 0

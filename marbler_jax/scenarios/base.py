@@ -18,7 +18,16 @@ import numpy as np
 
 from marbler_jax.xp import namespace
 
-BARRIERS = ("safe", "default", "none", "si", "si2", "si_boundary")
+BARRIERS = ("safe", "default", "safe_v2", "none", "si", "si2", "si_boundary", "si_v2", "si_boundary_v2")
+
+ROBOTARIUM_SETTINGS = {
+    # MARBLER's simulator (rps 6bb184e): its velocity clip and its "safe" certificate
+    "2023": {"physics": "marbler", "barrier_certificate": "safe"},
+    # today's Robotarium (rps v2): wheel clip with L = 0.11, the v2 certificate at MARBLER's radius 0.2
+    "v2": {"physics": "robotarium", "barrier_certificate": "safe_v2"},
+}
+"""What ``robotarium=`` sets (the physics preset and the barrier); the collision and boundary rules
+are the same in both (rps v2 checks the same offset centres, 0.135 m, and the same arena)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -36,7 +45,10 @@ class ScenarioConfig:
             15 reproduces MARBLER's training (``robotarium: False``): the held command turns robots
             by up to 90 degrees between refreshes, so collisions and boundary violations occur.
         barrier_certificate: ``"safe"`` (MARBLER default: certificate2, radius 0.2), ``"default"``
-            (certificate, radius 0.17), ``"none"``, or an SI kind of :mod:`marbler_jax.cbf`.
+            (certificate, radius 0.17), ``"safe_v2"`` (today's Robotarium certificate, rps v2's
+            ``create_si_barrier_certificate``, at MARBLER's radius 0.2: octagon speed rows, and the
+            whole team stopped when its QP has no solution), ``"none"``, or an SI kind of
+            :mod:`marbler_jax.cbf`.
         cbf_iterations: solver sweeps of the barrier per control refresh (``None``:
             :func:`marbler_jax.control_loop.default_cbf_iterations`, 12 cold or 6 warm-started at
             ``control_period=1`` for 4 robots, 20 cold or 10 warm for 20, chosen on env
@@ -52,6 +64,10 @@ class ScenarioConfig:
         penalize_violations: end the step at the first collision / boundary tick, give every agent
             the scenario's violation reward and end the episode (MARBLER).
         physics: physics preset name (``"robotarium"``, ``"marbler"``, ``"rps2024"``).
+        robotarium: ``"2023"`` (MARBLER's simulator) or ``"v2"`` (today's Robotarium) sets ``physics``
+            and ``barrier_certificate`` together (:data:`ROBOTARIUM_SETTINGS`); ``None`` (default)
+            leaves them to their own fields: today's physics with MARBLER's certificate, what the
+            benchmark's recipes train with.
         zero_reset_obs: return all-zero observations from ``reset`` as MARBLER does (a bug kept
             only as a switch for reproducing the paper; default False returns the real observation).
         LEFT, RIGHT, UP, DOWN: waypoint clamp box (UP is the *minimum* y, as in MARBLER).
@@ -66,6 +82,7 @@ class ScenarioConfig:
     cbf_warm_start: bool | None = None
     penalize_violations: bool = True
     physics: str = "robotarium"
+    robotarium: str | None = None
     zero_reset_obs: bool = False
     LEFT: float = -1.4
     RIGHT: float = 1.4
@@ -90,6 +107,13 @@ class ScenarioConfig:
             raise ValueError(f"cbf_relaxation={self.cbf_relaxation!r} must lie in (0, 2) (over-relaxation of the barrier sweeps)")
         from marbler_jax import physics
 
+        if self.robotarium is not None:
+            if self.robotarium not in ROBOTARIUM_SETTINGS:
+                raise ValueError(f"robotarium={self.robotarium!r} is not one of {list(ROBOTARIUM_SETTINGS)} (or None)")
+            for name, value in ROBOTARIUM_SETTINGS[self.robotarium].items():
+                if getattr(self, name) != value:
+                    raise ValueError(f"robotarium={self.robotarium!r} uses {name}={value!r}, "
+                                     f"but {name}={getattr(self, name)!r} was given; drop one of the two")
         physics.get_params(self.physics)
         x_min, x_max, y_min, y_max = physics.get_params(self.physics).arena
         if not (x_min <= self.LEFT < self.RIGHT <= x_max and y_min <= self.UP < self.DOWN <= y_max):
@@ -130,6 +154,8 @@ def build_config(config_cls: type[ScenarioConfig], overrides: dict[str, Any]) ->
     clean = {}
     for name, value in overrides.items():
         clean[name] = _coerce(name, value, hints[name])
+    if clean.get("robotarium") in ROBOTARIUM_SETTINGS:      # the simulator's settings, unless given explicitly
+        clean = {**ROBOTARIUM_SETTINGS[clean["robotarium"]], **clean}
     config = config_cls(**clean)
     config.validate()
     return config
