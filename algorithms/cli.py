@@ -280,7 +280,8 @@ def _export(args) -> int:
     from .export import export_policy
 
     spec = export_policy(args.run, args.out, seed_index=args.seed_index, checkpoint=args.checkpoint,
-                         bundle=args.bundle, episodes=args.episodes, bundle_seed=args.bundle_seed)
+                         bundle=args.bundle, episodes=args.episodes, bundle_seed=args.bundle_seed,
+                         control_period=None if args.control_period == "train" else args.control_period)
     from marbler_jax.deploy.bundle import folder_size
 
     files = sorted(p.name for p in Path(args.out).iterdir())
@@ -292,7 +293,22 @@ def _export(args) -> int:
           f"load_policy({str(args.out)!r}).act(obs)")
     if args.bundle:
         _print_bundle(Path(args.bundle))
+        period = "the training period" if args.control_period == "train" else f"every {args.control_period} iteration(s)"
+        print(f"the bundle recomputes controller and barrier {period} and clips commands to the motor limits")
     return 0
+
+
+def _period(text: str):
+    """``--control-period``: a positive integer, or ``train`` (kept as the string)."""
+    if text == "train":
+        return text
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a positive integer or 'train'")
+    return value
 
 
 def _print_bundle(folder: Path) -> None:
@@ -484,6 +500,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="also write a flat Robotarium submission bundle (main.py + files) to this folder")
     ex.add_argument("--episodes", type=int, default=2, help="episodes the bundle runs (start states drawn now)")
     ex.add_argument("--bundle-seed", type=int, default=0, help="seed of the bundle's start states")
+    ex.add_argument("--control-period", type=_period, default=1, metavar="N|train",
+                    help="Robotarium iterations between the bundle's controller and barrier refreshes: 1 is "
+                         "the robots' loop; 'train' deploys the period the policy trained with")
     ex.set_defaults(func=_export)
     rd = sub.add_parser("render", help="GIF/MP4 of a run's greedy policy, or of a scenario with random actions")
     rd.add_argument("target", help="run folder (greedy policy) or scenario name (random actions)")

@@ -60,12 +60,15 @@ def export_params(algo: str, cfg, params, env, out, extra: dict | None = None) -
 
 
 def export_policy(run, out, seed_index: int = 0, checkpoint: str = "best", bundle=None, episodes: int = 2,
-                  bundle_seed: int = 0) -> dict:
+                  bundle_seed: int = 0, control_period: int | None = 1) -> dict:
     """Export seed ``seed_index`` of run folder ``run`` to the policy folder ``out``; returns the spec.
 
     With ``bundle`` (a folder), also write the Robotarium submission bundle there
     (:func:`marbler_jax.deploy.bundle.write_bundle`) with ``episodes`` start states drawn from
-    ``bundle_seed``."""
+    ``bundle_seed``. The bundle recomputes controller and barrier every ``control_period``
+    Robotarium iterations: 1 (default) is the robots' loop, whatever period the policy trained with
+    (a command held for 15 iterations is what lets robots collide on the real testbed); ``None``
+    deploys the training period as it is."""
     import marbler_jax
     from .driver import ALGORITHMS
     from .evaluate import restore_params
@@ -74,13 +77,19 @@ def export_policy(run, out, seed_index: int = 0, checkpoint: str = "best", bundl
     if not (run / "config.json").exists():
         raise ValueError(f"{run} is not a run folder (no config.json)")
     config = json.loads((run / "config.json").read_text())
+    if control_period is not None and (isinstance(control_period, bool) or not isinstance(control_period, int)
+                                       or control_period < 1):
+        raise ValueError(f"control_period must be an integer >= 1 (or None for the training period), "
+                         f"got {control_period!r}")
     env = marbler_jax.make(config["scenario"], **config["env"])
     cfg = ALGORITHMS[config["algo"]][0](**config["algorithm"])
     one = select_seed(restore_params(run, checkpoint), seed_index)
     extra = dict(env=config["env"], checkpoint=checkpoint, seed_index=seed_index)
     spec = export_params(config["algo"], cfg, one, env, out, extra).spec
     if bundle is not None:
-        write_bundle(env, out, bundle, config["algo"], episodes=episodes, seed=bundle_seed)
+        deployed = env if control_period is None else marbler_jax.make(
+            config["scenario"], **dict(config["env"], control_period=control_period))
+        write_bundle(deployed, out, bundle, config["algo"], episodes=episodes, seed=bundle_seed)
     return spec
 
 

@@ -143,6 +143,17 @@ def threshold(params: RobotariumParams, velocities):
     return diff_to_uni(params, wheels)
 
 
+def actuator_safe(velocities):
+    """(v, omega) ``[..., N, 2]`` with each wheel speed clipped to the 12.5 rad/s motor limit at the
+    largest base length of any preset (0.11 m, rps v2), what a deployed command goes through.
+
+    rps counts an actuator error whenever a commanded wheel speed exceeds the limit (rps v2 with
+    L = 0.11, rps 6bb184e with L = 0.105 after its own v / omega clip). A command clipped this way
+    passes both checks, and on rps v2 it moves the robots exactly as rps's own wheel clip would.
+    """
+    return threshold(PRESETS["robotarium"], velocities)
+
+
 def wrap_angle(theta):
     """Wrap angles to (-pi, pi] the way rps does: ``atan2(sin, cos)``."""
     xp = namespace(theta)
@@ -377,7 +388,7 @@ def max_angular_velocity(params: RobotariumParams) -> float:
 
 
 __all__ = [
-    "RobotariumParams", "PRESETS", "DEFAULT_PRESET", "get_params", "uni_to_diff", "diff_to_uni",
+    "actuator_safe", "RobotariumParams", "PRESETS", "DEFAULT_PRESET", "get_params", "uni_to_diff", "diff_to_uni",
     "threshold", "wrap_angle", "integrate", "trajectory", "held_ticks", "collision_centres", "pair_distances", "collisions",
     "collision_pairs", "out_of_bounds", "check_num_robots",
     "max_angular_velocity",

@@ -142,6 +142,8 @@ def test_bundles_run_in_the_real_rps_simulator_like_the_env(bundles, tmp_path):
         else:                              # untrained policies may violate: the bundle saw what rps saw
             assert ("outside the boundaries" not in stdout) or "out_of_bounds=True" in stdout, stdout
             assert ("collided" not in stdout) or "collisions=True" in stdout, stdout
+        # every command is clipped to the motors' limits before set_velocities: rps counts no actuator error
+        assert "actuator limits were exceeded" not in stdout, stdout
         pairs += [str(folder), str(trace)]
         if name not in FLOAT32_REPLAY:
             continue
@@ -205,3 +207,24 @@ def test_end_of_script_call_supports_old_and_new_rps():
     assert calls == ["call_at_scripts_end", "debug"]
     with pytest.raises(AttributeError, match="neither"):
         end_of_script(object())
+
+
+def test_export_deploys_the_robots_loop_unless_told_otherwise(ippo_simple_nav_run, tmp_path):
+    from marbler_jax_rl.export import export_policy
+
+    def bundle_period(**kw):
+        out = tmp_path / f"bundle-{len(list(tmp_path.iterdir()))}"
+        export_policy(ippo_simple_nav_run, tmp_path / "policy", checkpoint="final", bundle=out, **kw)
+        return json.loads(str(np.load(out / "bundle_config.npy", allow_pickle=False)))["config"]["control_period"]
+
+    trained = json.loads((ippo_simple_nav_run / "config.json").read_text())["env"]["control_period"]
+    assert bundle_period() == 1                                 # the default: controller + barrier every iteration
+    assert bundle_period(control_period=15) == 15               # an explicit choice
+    assert bundle_period(control_period=None) == trained        # the training period as it is
+    for bad in (0, 2.5, True):
+        with pytest.raises(ValueError, match="control_period must be an integer >= 1"):
+            export_policy(ippo_simple_nav_run, tmp_path / "policy", bundle=tmp_path / "x", control_period=bad)
+    assert cli(["export", str(ippo_simple_nav_run), "--out", str(tmp_path / "p2"), "--bundle", str(tmp_path / "b2"),
+                "--control-period", "train"]) == 0
+    with pytest.raises(SystemExit):
+        cli(["export", str(ippo_simple_nav_run), "--out", str(tmp_path / "p3"), "--control-period", "0"])

@@ -3,8 +3,10 @@
 ``python -m marbler_jax.deploy.replay BUNDLE TRACE_DIR`` prints one JSON line per episode (see
 :func:`replay_trace`): how far the poses the bundle logged (from rps or the robots) are from what
 the JAX env produces from the same start state and actions, over the whole episode and per step,
-and whether rewards and greedy actions agree. The env uses the ``"marbler"`` physics preset (the
-rps on PyPI is that version). Set ``JAX_ENABLE_X64=1`` to replay in float64: the bundle computes in
+and whether rewards and greedy actions agree. The env uses the ``"robotarium"`` physics preset: the
+bundle clips every command to the motors' limits at rps v2's base length
+(:func:`marbler_jax.physics.actuator_safe`, the same wheel clip as that preset), after which the
+PyPI rps's own v / omega clip changes nothing, so that preset moves the robots as either rps does. Set ``JAX_ENABLE_X64=1`` to replay in float64: the bundle computes in
 float64, so any difference left is a logic difference. In float32 (training precision) each step
 agrees to ~1e-7 m, but whole episodes in which robots crowd under an active barrier can drift
 apart by centimetres: the closed loop amplifies float32 rounding.
@@ -26,7 +28,7 @@ from marbler_jax.env import EnvState
 from marbler_jax.numpy_policy import load_policy
 
 
-def replay_trace(bundle, trace, physics: str = "marbler") -> list[dict]:
+def replay_trace(bundle, trace, physics: str = "robotarium") -> list[dict]:
     """Compare each episode the bundle logged in ``trace`` with the JAX env.
 
     Two replays from the episode's start state with the bundle's actions: a *free* run (the env
@@ -37,7 +39,7 @@ def replay_trace(bundle, trace, physics: str = "marbler") -> list[dict]:
     """
     bundle, trace = Path(bundle), Path(trace)
     config = load_config(str(bundle))
-    env = marbler_jax.make(config["scenario"], **{**config["config"], "physics": physics})
+    env = marbler_jax.make(config["scenario"], **{**config["config"], "physics": physics, "robotarium": None})
     dtype = jnp.asarray(0.0).dtype
     poses0 = np.load(bundle / "initial_poses.npy", allow_pickle=False)
     fields = {name: np.load(bundle / f"initial_{name}.npy", allow_pickle=False) for name in config["state_fields"]}

@@ -10,7 +10,8 @@ Per env step: the policy acts on the observation, the scenario turns actions int
 poses at the start of the step, then for each of ``update_frequency`` Robotarium iterations:
 ``get_poses()`` (exactly once) -> check that pose for collisions / boundary violations (as the env
 checks every pre-tick pose) -> every ``control_period`` iterations recompute the command (held in
-between) -> ``set_velocities`` -> ``step()``. As in MARBLER (and the env), the iteration whose
+between) -> clip to the motors' limits (:func:`marbler_jax.physics.actuator_safe`, so rps reports no
+actuator error) -> ``set_velocities`` -> ``step()``. As in MARBLER (and the env), the iteration whose
 pose violates still runs; with ``penalize_violations`` the env step then ends and so does the
 episode. The pose after the step's last iteration is read by the next ``get_poses()``.
 """
@@ -66,7 +67,8 @@ def _read_poses(robotarium) -> np.ndarray:
     return np.array(robotarium.get_poses(), dtype=np.float64).T
 
 
-def run_episode(robotarium, scenario, policy, scenario_state, barrier=None, params=None) -> EpisodeLog:
+def run_episode(robotarium, scenario, policy, scenario_state, barrier=None, params=None,
+                clip_actuators: bool = True) -> EpisodeLog:
     """Run one episode on ``robotarium`` (an ``rps`` ``Robotarium`` created at the initial poses).
 
     Args:
@@ -76,6 +78,8 @@ def run_episode(robotarium, scenario, policy, scenario_state, barrier=None, para
         scenario_state: the scenario's state at the start of the episode.
         barrier: the SI barrier (:func:`marbler_jax.control_loop.barrier_for`), ``None`` for none.
         params: physics constants for the violation tests (default: ``config.physics``).
+        clip_actuators: send :func:`marbler_jax.physics.actuator_safe` commands (default); False
+            sends the controller's command as it is and leaves the clipping to the simulator.
 
     Returns:
         the :class:`EpisodeLog`.
@@ -116,7 +120,8 @@ def run_episode(robotarium, scenario, policy, scenario_state, barrier=None, para
                 else:
                     velocities, multipliers = control_warm(poses, goals, barrier, multipliers)
                     velocities = np.asarray(velocities, dtype=np.float64)
-            robotarium.set_velocities(ids, np.array(velocities.T))
+            command = physics.actuator_safe(velocities) if clip_actuators else velocities
+            robotarium.set_velocities(ids, np.array(command.T))
             log.compute_s.append(time.perf_counter() - started)
             robotarium.step()
             if config.penalize_violations and (hit or out):
