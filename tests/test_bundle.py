@@ -29,6 +29,9 @@ from tests.conftest import build_once
 
 REPO = Path(__file__).resolve().parents[1]
 RPS_VENV = REPO / ".rps-venv"
+RPS_V2_VENV = REPO / ".rps-v2-venv"
+TODAYS_ROBOTARIUM = REPO.parent / "shared" / "robotarium"   # rps v2 wheel + the server's library list
+SERVER_VERSIONS = ("numpy==2.2.6", "scipy==1.15.3", "matplotlib==3.10.8", "cvxopt==1.3.2")
 
 # scenario -> (algorithm module, config, algo name, env overrides): every architecture we train
 UNTRAINED = {
@@ -115,6 +118,24 @@ def _rps_python() -> Path:
         subprocess.run([python, "-m", "pip", "install", "-q", "--disable-pip-version-check",
                         "robotarium-python-simulator", "numpy>=1.24,<1.25"], check=True, timeout=900)
     assert subprocess.run([python, "-c", "import jax"], capture_output=True).returncode != 0, "rps venv has JAX"
+    return python
+
+
+def _rps_v2_python() -> Path:
+    """Python of a virtualenv with today's Robotarium simulator (rps v2) and the server's library
+    versions, without JAX; skips where ``../shared/robotarium`` is absent."""
+    if os.environ.get("MARBLER_JAX_SKIP_RPS") == "1":
+        pytest.skip("MARBLER_JAX_SKIP_RPS=1")
+    wheels = sorted(TODAYS_ROBOTARIUM.glob("robotarium_python_simulator-*.whl"))
+    if not wheels:
+        pytest.skip(f"no rps v2 wheel in {TODAYS_ROBOTARIUM}")
+    python = RPS_V2_VENV / "bin" / "python"
+    probe = "import rps.robotarium, numpy; assert numpy.__version__ == '2.2.6'; assert hasattr(rps.robotarium.Robotarium, 'debug')"
+    if not (python.exists() and subprocess.run([python, "-c", probe], capture_output=True).returncode == 0):
+        subprocess.run([sys.executable, "-m", "venv", "--clear", str(RPS_V2_VENV)], check=True)
+        subprocess.run([python, "-m", "pip", "install", "-q", "--disable-pip-version-check", *SERVER_VERSIONS,
+                        str(wheels[-1])], check=True, timeout=900)
+    assert subprocess.run([python, "-c", "import jax"], capture_output=True).returncode != 0, "rps v2 venv has JAX"
     return python
 
 
@@ -228,3 +249,21 @@ def test_export_deploys_the_robots_loop_unless_told_otherwise(ippo_simple_nav_ru
                 "--control-period", "train"]) == 0
     with pytest.raises(SystemExit):
         cli(["export", str(ippo_simple_nav_run), "--out", str(tmp_path / "p3"), "--control-period", "0"])
+
+
+def test_bundles_run_on_todays_robotarium(bundles, tmp_path):
+    """Every bundle under rps v2 (the Robotarium's simulator today, with the server's numpy 2.2.6 /
+    scipy / matplotlib / cvxopt and no JAX), through v2's drive-in phase from the chargers: ``debug()``
+    passes the trained policy without an error or a warning, counts no actuator error for any bundle,
+    and every hard error it reports the bundle saw too."""
+    python = _rps_v2_python()
+    for name, folder in bundles.items():
+        stdout = _run_bundle(python, folder, tmp_path / f"trace-{name}")
+        episodes = 2 if name == "simple_navigation" else 1
+        assert stdout.count("episode ") == episodes and "real seconds to execute" in stdout, stdout
+        assert "exceed actuator limits" not in stdout, (name, stdout)
+        if name == "simple_navigation":
+            assert stdout.count("No errors or warnings in your simulation!") == episodes, stdout
+        else:
+            assert ("robots were too close" not in stdout) or "collisions=True" in stdout, (name, stdout)
+            assert ("outside boundaries" not in stdout) or "out_of_bounds=True" in stdout, (name, stdout)
