@@ -118,10 +118,19 @@ def best_seed(run) -> tuple[int, float]:
     return index, float(scores[index])
 
 
+DEPLOYED_PERIOD = 1
+"""The control period of the robots' loop: what ``marbler-jax export`` deploys by default."""
+
+
 def evaluate_run(run, episodes: int = 100, checkpoint: str = "best", seed: int = 0, progress: bool = False,
                  seed_selection: str = "all") -> dict:
     """Table II metrics of every seed of run folder ``run`` and pooled over seeds, or with
-    ``seed_selection="best"`` of the one seed :func:`best_seed` picks (the paper's protocol)."""
+    ``seed_selection="best"`` of the one seed :func:`best_seed` picks (the paper's protocol).
+
+    The policy is evaluated in the loop it trained in (``pooled``, ``per_seed``) and, when that loop's
+    ``control_period`` is not 1, also in the robots' loop that a bundle deploys (``deployed``: the same
+    env with controller and barrier every tick, the same start states): MARBLER's sim-vs-real
+    comparison as training loop vs deployment loop, in simulation."""
     from .driver import ALGORITHMS
 
     if seed_selection not in ("all", "best"):
@@ -140,21 +149,32 @@ def evaluate_run(run, episodes: int = 100, checkpoint: str = "best", seed: int =
     n_seeds = jax.tree_util.tree_leaves(params)[0].shape[0]
     per_seed, pooled = [], {}
     seeds = [best_seed(run)[0]] if seed_selection == "best" else list(range(n_seeds))
+    loops = {"trained": env}
+    if env.config.control_period != DEPLOYED_PERIOD:
+        loops["deployed"] = marbler_jax.make(config["scenario"], **dict(config["env"], control_period=DEPLOYED_PERIOD))
+    jobs = [(name, s) for name in loops for s in seeds]
     if progress:
         from tqdm.auto import tqdm
 
-        seeds = tqdm(seeds, unit="seed", desc=f"evaluating {episodes} episodes")
-    for s in seeds:
+        jobs = tqdm(jobs, unit="seed", desc=f"evaluating {episodes} episodes")
+    per_seed = {name: [] for name in loops}
+    pooled = {name: {} for name in loops}
+    for name, s in jobs:
+        loop_env = loops[name]
         p = jax.tree_util.tree_map(lambda x: jnp.asarray(x[s]), params)
-        values = greedy_episodes(env, greedy(env, cfg, p), episodes, jax.random.PRNGKey(seed + 1000 * s))
-        per_seed.append(summarize(values))
+        values = greedy_episodes(loop_env, greedy(loop_env, cfg, p), episodes, jax.random.PRNGKey(seed + 1000 * s))
+        per_seed[name].append(summarize(values))
         for k, v in values.items():
-            pooled.setdefault(k, []).append(v)
-    pooled_summary = summarize({k: np.concatenate(v) for k, v in pooled.items()})
-    return dict(scenario=config["scenario"], algo=config["algo"], checkpoint=checkpoint, episodes_per_seed=episodes,
-                seeds=n_seeds, seed_selection=seed_selection, seed_indices=list(seeds), pooled=pooled_summary,
-                per_seed=per_seed,
-                paper=PAPER.get(config["scenario"], {}).get(config["algo"]))
+            pooled[name].setdefault(k, []).append(v)
+    summaries = {name: summarize({k: np.concatenate(v) for k, v in pooled[name].items()}) for name in loops}
+    result = dict(scenario=config["scenario"], algo=config["algo"], checkpoint=checkpoint, episodes_per_seed=episodes,
+                  seeds=n_seeds, seed_selection=seed_selection, seed_indices=list(seeds),
+                  control_period=env.config.control_period, pooled=summaries["trained"], per_seed=per_seed["trained"],
+                  paper=PAPER.get(config["scenario"], {}).get(config["algo"]))
+    if "deployed" in loops:
+        result["deployed"] = dict(control_period=DEPLOYED_PERIOD, pooled=summaries["deployed"],
+                                  per_seed=per_seed["deployed"])
+    return result
 
 
 def markdown_table(result: dict) -> str:
@@ -164,9 +184,14 @@ def markdown_table(result: dict) -> str:
         seeds = f"seed {result['seed_indices'][0]}, the best of {result['seeds']} by greedy test return"
     else:
         seeds = f"{result['seeds']} seed(s)"
+    deployed = result.get("deployed")
+    period = result.get("control_period", 1)
+    header = ("| metric | marbler-jax | MARBLER paper (sim) |", "|---|---|---|")
+    if deployed:
+        header = (f"| metric | training loop (period {period}) | robots' loop (period {deployed['control_period']}, "
+                  "what a bundle deploys) | MARBLER paper (sim) |", "|---|---|---|---|")
     lines = [f"### {result['algo']} on {result['scenario']} ({seeds} x "
-             f"{result['episodes_per_seed']} episodes, {result['checkpoint']} checkpoint)", "",
-             "| metric | marbler-jax | MARBLER paper (sim) |", "|---|---|---|"]
+             f"{result['episodes_per_seed']} episodes, {result['checkpoint']} checkpoint)", "", *header]
     extra = [k for k in result["pooled"] if k not in METRICS]            # e.g. deliveries, landmarks_left
     for key in METRICS[:4] + tuple(extra) + METRICS[4:]:
         if key not in result["pooled"]:
@@ -175,8 +200,12 @@ def markdown_table(result: dict) -> str:
         unit = " %" if key in ("collisions", "out_of_bounds") else ""
         ref = paper.get(key)
         ref_text = f"{ref[0]:g} ± {ref[1]:g}" if ref else ("0" if key in ("collisions", "out_of_bounds") and paper else "—")
-        lines.append(f"| {key.replace('_', ' ')}{unit} | {ours['mean']:.2f} ± {ours['std']:.2f} | {ref_text} |")
+        cells = [f"{ours['mean']:.2f} ± {ours['std']:.2f}"]
+        if deployed:
+            there = deployed["pooled"][key]
+            cells.append(f"{there['mean']:.2f} ± {there['std']:.2f}")
+        lines.append(f"| {key.replace('_', ' ')}{unit} | {' | '.join(cells)} | {ref_text} |")
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["evaluate_run", "best_seed", "markdown_table", "greedy_episodes", "first_episodes", "restore_params", "PAPER"]
+__all__ = ["DEPLOYED_PERIOD", "evaluate_run", "best_seed", "markdown_table", "greedy_episodes", "first_episodes", "restore_params", "PAPER"]

@@ -189,6 +189,7 @@ def test_best_checkpoint_keeps_each_seeds_best_and_evaluate_can_pick_the_best_se
     every = evaluate_run(run, episodes=4)
     only = evaluate_run(run, episodes=4, seed_selection="best")
     assert only["seed_indices"] == [winner] and every["seed_indices"] == [0, 1]
+    assert "deployed" not in every       # trained in the robots' loop already: one column
     assert only["pooled"] == every["per_seed"][winner]          # the same seed, key and episodes
     assert f"seed {winner}, the best of 2 by greedy test return" in markdown_table(only)
     with pytest.raises(ValueError, match="seed_selection must be 'all' or 'best', got 'worst'"):
@@ -233,3 +234,20 @@ def test_a_kill_before_the_checkpoint_commits_repeats_the_chunk(tmp_path, monkey
     bests = [ocp.CheckpointManager(tmp_path / run / "best") for run in ("full", "cut")]
     assert bests[0].latest_step() == bests[1].latest_step()
     jax.tree_util.tree_map(np.testing.assert_array_equal, *(b.restore(b.latest_step()) for b in bests))
+
+
+def test_evaluate_reports_the_training_loop_and_the_robots_loop_side_by_side(tmp_path):
+    from marbler_jax_rl.evaluate import evaluate_run, greedy_episodes, markdown_table, restore_params, summarize
+
+    run = tmp_path / "run"
+    train(out=run, **dict(TWO_SEEDS, seeds=1, checkpoint_every=None, env_overrides={"control_period": 15}))
+    result = evaluate_run(run, episodes=8)
+    assert result["control_period"] == 15 and result["deployed"]["control_period"] == 1
+    # the deployed column is the same policy and start states in the every-tick env
+    env1 = marbler_jax.make("simple_navigation", control_period=1)
+    cfg = ALGORITHMS["ippo"][0](**json.loads((run / "config.json").read_text())["algorithm"])
+    params = jax.tree_util.tree_map(lambda x: x[0], restore_params(run, "best"))
+    direct = summarize(greedy_episodes(env1, ALGORITHMS["ippo"][2](env1, cfg, params), 8, jax.random.PRNGKey(0)))
+    assert result["deployed"]["pooled"] == direct
+    table = markdown_table(result)
+    assert "| metric | training loop (period 15) | robots' loop (period 1, what a bundle deploys) |" in table
