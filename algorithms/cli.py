@@ -281,7 +281,8 @@ def _export(args) -> int:
 
     spec = export_policy(args.run, args.out, seed_index=args.seed_index, checkpoint=args.checkpoint,
                          bundle=args.bundle, episodes=args.episodes, bundle_seed=args.bundle_seed,
-                         control_period=None if args.control_period == "train" else args.control_period)
+                         control_period=None if args.control_period == "train" else args.control_period,
+                         force=args.force)
     from marbler_jax.deploy.bundle import folder_size
 
     files = sorted(p.name for p in Path(args.out).iterdir())
@@ -341,18 +342,25 @@ def _evaluate(args) -> int:
 def _quickstart(args) -> int:
     from .driver import train
 
-    out = Path(args.out)
-    if (out / "checkpoints").exists():
+    from marbler_jax.deploy.bundle import check_target, replace_folder
+
+    final = Path(args.out)
+    check_target(final, "config.json", "quickstart run", args.force)
+    if final.exists() and any(final.iterdir()):
+        print(f"replacing the earlier run in {final} once this one has finished")
+    out = final.with_name(final.name + ".new")    # built beside it, swapped in at the end
+    if out.exists():
         import shutil
 
-        shutil.rmtree(out / "checkpoints")  # the quickstart always starts fresh
-        shutil.rmtree(out / "best", ignore_errors=True)
+        shutil.rmtree(out)                          # an unfinished earlier attempt of ours
     result = train("simple_navigation", "ippo", 300_000, 2, out, hp={"lr": 1e-3})
     gif = out / "episode.gif"
     _episode_gif(out, gif)
     from .export import export_policy
 
     export_policy(out, out / "policy", checkpoint="final", bundle=out / "robotarium")
+    replace_folder(out, final)
+    out = final
     better = result["trained"]["return"] > result["random"]["return"]
     print("\nquickstart outputs:")
     for name in ("config.json", "metrics.jsonl", "learning_curve.png", "params.npz", "evaluation.json", "episode.gif",
@@ -503,6 +511,8 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--control-period", type=_period, default=1, metavar="N|train",
                     help="Robotarium iterations between the bundle's controller and barrier refreshes: 1 is "
                          "the robots' loop; 'train' deploys the period the policy trained with")
+    ex.add_argument("--force", action="store_true",
+                    help="replace --out / --bundle folders even if they hold files export did not write")
     ex.set_defaults(func=_export)
     rd = sub.add_parser("render", help="GIF/MP4 of a run's greedy policy, or of a scenario with random actions")
     rd.add_argument("target", help="run folder (greedy policy) or scenario name (random actions)")
@@ -549,6 +559,7 @@ def build_parser() -> argparse.ArgumentParser:
     rp.set_defaults(func=_report)
     qs = sub.add_parser("quickstart", help="the main job: train, evaluate, plot and render (a few minutes)")
     qs.add_argument("--out", default="runs/quickstart")
+    qs.add_argument("--force", action="store_true", help="replace --out even if it holds files quickstart did not write")
     qs.set_defaults(func=_quickstart)
     bench = sub.add_parser("bench", help="barrier certificate and integrator throughput")
     bench.add_argument("--out", default="bench_out/cbf.json")
@@ -568,6 +579,19 @@ def main(argv=None) -> int:
     except (ValueError, TypeError) as err:
         print(f"marbler-jax: error: {err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"marbler-jax: interrupted{_resume_hint(args)}", file=sys.stderr)
+        return 130
+
+
+def _resume_hint(args) -> str:
+    """How to continue an interrupted command (every finished chunk and cell is saved)."""
+    if args.command == "train":
+        again = args.argv if "--resume" in args.argv else [*args.argv, "--resume"]
+        return "; the last checkpoint is kept, resume with: marbler-jax " + " ".join(again)
+    if args.command == "benchmark":
+        return "; finished cells and checkpoints are kept, run the same command to resume: marbler-jax " + " ".join(args.argv)
+    return ""
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ import numpy as np
 
 from .driver import flatten_params, select_seed
 from .networks import QAgent
-from marbler_jax.deploy.bundle import replace_folder, write_bundle
+from marbler_jax.deploy.bundle import check_target, replace_folder, write_bundle
 from marbler_jax.numpy_policy import FORMAT, SPEC_FILE, NumpyPolicy
 
 
@@ -41,9 +41,11 @@ def _float32(tensors: dict) -> dict:
     return {name: np.asarray(value, np.float32) for name, value in tensors.items()}
 
 
-def export_params(algo: str, cfg, params, env, out, extra: dict | None = None) -> NumpyPolicy:
+def export_params(algo: str, cfg, params, env, out, extra: dict | None = None, force: bool = False) -> NumpyPolicy:
     """Write the policy folder ``out`` for one seed's ``params`` (``extra``: more spec fields);
-    returns the numpy policy."""
+    returns the numpy policy. ``out`` is replaced only if it is empty or an earlier policy export (or
+    ``force``)."""
+    check_target(out, SPEC_FILE, "policy", force)
     fields, tensors = policy_tensors(algo, cfg, params)
     spec = dict(format=FORMAT, algo=algo, scenario=env.name, num_agents=env.num_agents, obs_dim=env.obs_dim,
                 num_actions=env.num_actions, shared=bool(cfg.shared), agent_ids=bool(cfg.agent_ids), **fields,
@@ -60,7 +62,7 @@ def export_params(algo: str, cfg, params, env, out, extra: dict | None = None) -
 
 
 def export_policy(run, out, seed_index: int = 0, checkpoint: str = "best", bundle=None, episodes: int = 2,
-                  bundle_seed: int = 0, control_period: int | None = 1) -> dict:
+                  bundle_seed: int = 0, control_period: int | None = 1, force: bool = False) -> dict:
     """Export seed ``seed_index`` of run folder ``run`` to the policy folder ``out``; returns the spec.
 
     With ``bundle`` (a folder), also write the Robotarium submission bundle there
@@ -68,7 +70,8 @@ def export_policy(run, out, seed_index: int = 0, checkpoint: str = "best", bundl
     ``bundle_seed``. The bundle recomputes controller and barrier every ``control_period``
     Robotarium iterations: 1 (default) is the robots' loop, whatever period the policy trained with
     (a command held for 15 iterations is what lets robots collide on the real testbed); ``None``
-    deploys the training period as it is."""
+    deploys the training period as it is. ``out`` and ``bundle`` are replaced only when empty or
+    earlier outputs of ``export`` (``force`` replaces any folder; a file never)."""
     import marbler_jax
     from .driver import ALGORITHMS
     from .evaluate import restore_params
@@ -76,6 +79,11 @@ def export_policy(run, out, seed_index: int = 0, checkpoint: str = "best", bundl
     run = Path(run)
     if not (run / "config.json").exists():
         raise ValueError(f"{run} is not a run folder (no config.json)")
+    check_target(out, SPEC_FILE, "policy", force)
+    if bundle is not None:
+        from marbler_jax.deploy.main import CONFIG_FILE
+
+        check_target(bundle, CONFIG_FILE, "bundle", force)
     config = json.loads((run / "config.json").read_text())
     if control_period is not None and (isinstance(control_period, bool) or not isinstance(control_period, int)
                                        or control_period < 1):
@@ -85,11 +93,11 @@ def export_policy(run, out, seed_index: int = 0, checkpoint: str = "best", bundl
     cfg = ALGORITHMS[config["algo"]][0](**config["algorithm"])
     one = select_seed(restore_params(run, checkpoint), seed_index)
     extra = dict(env=config["env"], checkpoint=checkpoint, seed_index=seed_index)
-    spec = export_params(config["algo"], cfg, one, env, out, extra).spec
+    spec = export_params(config["algo"], cfg, one, env, out, extra, force=force).spec
     if bundle is not None:
         deployed = env if control_period is None else marbler_jax.make(
             config["scenario"], **dict(config["env"], control_period=control_period))
-        write_bundle(deployed, out, bundle, config["algo"], episodes=episodes, seed=bundle_seed)
+        write_bundle(deployed, out, bundle, config["algo"], episodes=episodes, seed=bundle_seed, force=force)
     return spec
 
 

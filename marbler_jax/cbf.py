@@ -411,6 +411,10 @@ def make_barrier(kind: str = "si2", **params) -> Barrier:
             f"barrier {kind!r} does not take {unknown}; valid keywords are {sorted(allowed)}"
         )
     cfg = {**_DEFAULTS[kind], **params}
+    for name, value in cfg.items():         # every number finite (boundary_points checked below)
+        if name != "boundary_points" and value is not None and not (
+                isinstance(value, (int, float, np.number)) and not isinstance(value, bool) and math.isfinite(value)):
+            raise ValueError(f"barrier {kind!r}: {name} must be a finite number, got {value!r}")
     gain = float(cfg["barrier_gain"])
     radius = float(cfg["safety_radius"])
     limit = cfg.get("magnitude_limit")
@@ -438,7 +442,7 @@ def make_barrier(kind: str = "si2", **params) -> Barrier:
     bounds = cfg.get("boundary_points")
     if bounds is not None:
         bounds = tuple(float(b) for b in bounds)
-        if len(bounds) != 4 or not (bounds[0] < bounds[1] and bounds[2] < bounds[3]):
+        if len(bounds) != 4 or not all(map(math.isfinite, bounds)) or not (bounds[0] < bounds[1] and bounds[2] < bounds[3]):
             raise ValueError(f"boundary_points must be (x_min, x_max, y_min, y_max) with min < max, got {bounds}")
     iterations = cfg.get("iterations")
     if iterations is not None and (int(iterations) != iterations or iterations < 0):

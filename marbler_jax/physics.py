@@ -361,10 +361,14 @@ def collision_pairs(params: RobotariumParams, poses):
 
 
 def out_of_bounds(params: RobotariumParams, poses):
-    """Per-robot boundary flags ``[..., N]``: centre strictly outside the arena (no margin)."""
+    """Per-robot boundary flags ``[..., N]``: centre strictly outside the arena (no margin), as rps
+    checks it; a pose with a non-finite coordinate or heading counts as outside (rps would report
+    nothing for it: every comparison with NaN is False)."""
+    xp = namespace(poses)
     x_min, x_max, y_min, y_max = params.arena
     x, y = poses[..., 0], poses[..., 1]
-    return (x < x_min) | (x > x_max) | (y < y_min) | (y > y_max)
+    inside = (x >= x_min) & (x <= x_max) & (y >= y_min) & (y <= y_max) & xp.isfinite(poses[..., 2])
+    return ~inside
 
 
 def check_num_robots(params: RobotariumParams, num_robots: int) -> int:

@@ -267,3 +267,20 @@ def test_bundles_run_on_todays_robotarium(bundles, tmp_path):
         else:
             assert ("robots were too close" not in stdout) or "collisions=True" in stdout, (name, stdout)
             assert ("outside boundaries" not in stdout) or "out_of_bounds=True" in stdout, (name, stdout)
+
+
+def test_export_never_deletes_what_a_user_made(ippo_simple_nav_run, tmp_path):
+    notes = tmp_path / "mine"
+    notes.mkdir()
+    (notes / "notes.txt").write_text("keep me")
+    args = ["export", str(ippo_simple_nav_run), "--checkpoint", "final"]
+    assert cli([*args, "--out", str(notes)]) == 2                          # refused, one line, nothing touched
+    assert cli([*args, "--out", str(tmp_path / "p"), "--bundle", str(notes)]) == 2
+    assert (notes / "notes.txt").read_text() == "keep me" and not (tmp_path / "p").exists()
+    a_file = tmp_path / "file.txt"
+    a_file.write_text("x")
+    assert cli([*args, "--out", str(a_file)]) == 2 and a_file.read_text() == "x"
+    assert not list(tmp_path.glob("*.old")) and not list(tmp_path.glob("*.tmp"))
+    # our own earlier output is replaced; --force replaces a foreign folder on purpose
+    assert cli([*args, "--out", str(tmp_path / "p")]) == 0 and cli([*args, "--out", str(tmp_path / "p")]) == 0
+    assert cli([*args, "--out", str(notes), "--force"]) == 0 and not (notes / "notes.txt").exists()

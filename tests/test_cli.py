@@ -149,3 +149,43 @@ def test_version_list_and_help_defaults(capsys):
     with pytest.raises(SystemExit):
         main(["benchmark", "--help"])
     assert "(default: 5)" in capsys.readouterr().out
+
+
+def test_ctrl_c_ends_with_one_line_and_exit_code_130(monkeypatch, capsys, tmp_path):
+    import marbler_jax_rl.cli as cli_module
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli_module, "_train", interrupted)
+    argv = ["train", "--scenario", "simple_navigation", "--algo", "ippo", "--out", str(tmp_path / "run")]
+    assert cli_module.main(argv) == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["marbler-jax: interrupted; the last checkpoint is kept, resume with: marbler-jax "
+                   + " ".join(argv + ["--resume"])]
+
+
+def test_quickstart_replaces_only_its_own_earlier_run(monkeypatch, tmp_path, capsys):
+    import marbler_jax_rl.cli as cli_module
+    import marbler_jax_rl.driver as driver
+
+    real = driver.train
+
+    def tiny(scenario, algo, total_steps, seeds, out, hp):     # the quickstart's job at a test's size
+        return real(scenario, algo, 4 * 8 * 8, 1, out, hp=dict(hp, num_envs=8, num_steps=8, hidden=16),
+                    eval_episodes=8, test_episodes=4, progress=False, log=lambda *a, **k: None)
+
+    monkeypatch.setattr(driver, "train", tiny)
+    monkeypatch.setattr(cli_module, "_episode_gif", lambda run, gif: gif.write_bytes(b"GIF89a"))
+    out = tmp_path / "qs"
+    assert cli_module.main(["quickstart", "--out", str(out)]) in (0, 1)
+    first = (out / "config.json").stat().st_mtime_ns
+    assert cli_module.main(["quickstart", "--out", str(out)]) in (0, 1)       # its own run: replaced whole
+    assert (out / "config.json").stat().st_mtime_ns != first and (out / "robotarium" / "main.py").exists()
+    assert "replacing the earlier run" in capsys.readouterr().out
+    assert not (tmp_path / "qs.new").exists() and not (tmp_path / "qs.old").exists()
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep me")
+    assert cli_module.main(["quickstart", "--out", str(mine)]) == 2
+    assert (mine / "notes.txt").read_text() == "keep me"

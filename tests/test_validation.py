@@ -44,3 +44,37 @@ def test_driver_checks_checkpoint_every(tmp_path):
     with pytest.raises(ValueError, match="checkpoint_every must be an integer >= 1"):
         train("simple_navigation", "ippo", 1000, 1, tmp_path / "x", checkpoint_every=0, progress=False)
     assert not (tmp_path / "x").exists()
+
+
+def test_scenario_config_values_are_checked_with_the_key_named():
+    import marbler_jax
+
+    with pytest.raises(ValueError, match="n_agents must be an integer, got 'four'"):
+        marbler_jax.make("simple_navigation", n_agents="four")
+    for bad in (0.0, -0.2):
+        with pytest.raises(ValueError, match=r"step_dist must be a distance > 0 \[m\]"):
+            marbler_jax.make("simple_navigation", step_dist=bad)
+    with pytest.raises(ValueError, match="levels must hold finite numbers"):
+        marbler_jax.make("foraging", levels=(float("nan"), 1.0))
+    with pytest.raises(ValueError, match="max_episode_steps must be an integer"):
+        marbler_jax.make("warehouse", max_episode_steps=float("inf"))
+
+
+def test_barrier_parameters_must_be_finite():
+    from marbler_jax import cbf
+
+    for kw in (dict(projection_distance=float("inf")), dict(barrier_gain=float("inf")),
+               dict(safety_radius=float("nan")), dict(boundary_points=(-1.6, float("inf"), -1, 1))):
+        kind = "uni_boundary"
+        with pytest.raises(ValueError, match="must be"):
+            cbf.make_barrier(kind, **kw)
+
+
+def test_a_non_finite_pose_is_a_violation():
+    import numpy as np
+
+    from marbler_jax import physics
+
+    params = physics.PRESETS["robotarium"]
+    poses = np.array([[np.nan, 0.0, 0.0], [0.5, 0.0, np.inf], [0.0, 0.5, 0.0]])
+    np.testing.assert_array_equal(physics.out_of_bounds(params, poses), [True, True, False])

@@ -42,9 +42,11 @@ def initial_states(env, episodes: int, seed: int = 0):
     return np.asarray(states.poses, np.float64), fields, type(states.scenario)
 
 
-def write_bundle(env, policy_dir, out, algo: str, episodes: int = 2, seed: int = 0) -> dict:
+def write_bundle(env, policy_dir, out, algo: str, episodes: int = 2, seed: int = 0, force: bool = False) -> dict:
     """Write the bundle for ``env`` (a :class:`marbler_jax.env.MarblerEnv`) and the numpy policy in
-    ``policy_dir`` to the folder ``out``; returns the bundle config."""
+    ``policy_dir`` to the folder ``out``; returns the bundle config. ``out`` is replaced only if it is
+    empty or an earlier bundle (or ``force``; see :func:`check_target`)."""
+    check_target(out, CONFIG_FILE, "bundle", force)
     scenario = env.scenario
     module = type(scenario).__module__
     stem = module.rsplit(".", 1)[-1]
@@ -76,6 +78,17 @@ def write_bundle(env, policy_dir, out, algo: str, episodes: int = 2, seed: int =
     return config
 
 
+def check_target(out, marker: str, what: str, force: bool = False) -> None:
+    """Refuse to replace ``out`` unless it is absent, empty, or an earlier output of ours (holds
+    ``marker``); ``force`` replaces any folder. A file is never replaced."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out} is a file, not a folder; give a folder for the {what}")
+    if out.is_dir() and not force and any(out.iterdir()) and not (out / marker).exists():
+        raise ValueError(f"{out} holds files marbler-jax did not write (no {marker}); choose a new or empty folder "
+                         f"for the {what}, or pass --force to replace that folder")
+
+
 def replace_folder(tmp, out) -> None:
     """Move the finished folder ``tmp`` to ``out``, replacing any old ``out`` (never half-written)."""
     tmp, out = Path(tmp), Path(out)
@@ -94,4 +107,4 @@ def folder_size(folder) -> int:
     return sum(p.stat().st_size for p in Path(folder).iterdir())
 
 
-__all__ = ["write_bundle", "initial_states", "folder_size", "replace_folder"]
+__all__ = ["write_bundle", "initial_states", "folder_size", "replace_folder", "check_target"]

@@ -121,6 +121,7 @@ def run_episode(robotarium, scenario, policy, scenario_state, barrier=None, para
                     velocities, multipliers = control_warm(poses, goals, barrier, multipliers)
                     velocities = np.asarray(velocities, dtype=np.float64)
             command = physics.actuator_safe(velocities) if clip_actuators else velocities
+            command = np.where(np.isfinite(command), command, 0.0)   # never send a non-finite velocity
             robotarium.set_velocities(ids, np.array(command.T))
             log.compute_s.append(time.perf_counter() - started)
             robotarium.step()

@@ -99,6 +99,10 @@ class ScenarioConfig:
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad value and what is allowed."""
         _positive_int(self, "max_episode_steps", "update_frequency", "control_period")
+        for f in dataclasses.fields(self):          # spacings and step lengths (``*_dist``) [m]
+            value = getattr(self, f.name)
+            if f.name.endswith("_dist") and not (isinstance(value, (int, float)) and value > 0):
+                raise ValueError(f"{f.name} must be a distance > 0 [m], got {value!r}")
         if self.barrier_certificate not in BARRIERS:
             raise ValueError(f"barrier_certificate={self.barrier_certificate!r} is not one of {list(BARRIERS)}")
         if self.cbf_iterations is not None:
@@ -178,7 +182,8 @@ def _coerce(name: str, value: Any, hint: Any) -> Any:
             return bool(value)
         raise ValueError(f"{name} must be true or false, got {value!r}")
     if hint is int:
-        if isinstance(value, (bool, np.bool_)) or not float(value).is_integer():
+        if (isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number))
+                or not math.isfinite(float(value)) or not float(value).is_integer()):
             raise ValueError(f"{name} must be an integer, got {value!r}")
         return int(value)
     if hint is float:
@@ -192,7 +197,13 @@ def _coerce(name: str, value: Any, hint: Any) -> Any:
             raise ValueError(f"{name} must be a string, got {value!r}")
         return value
     if origin is tuple:
-        return tuple(float(v) for v in value)
+        if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
+            raise ValueError(f"{name} must be a sequence of numbers, got {value!r}")
+        items = tuple(value)
+        if not all(isinstance(v, (int, float, np.number)) and not isinstance(v, (bool, np.bool_))
+                   and math.isfinite(float(v)) for v in items):
+            raise ValueError(f"{name} must hold finite numbers, got {value!r}")
+        return tuple(float(v) for v in items)
     return value
 
 
