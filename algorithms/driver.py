@@ -186,6 +186,10 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
             raise ValueError(f"--resume: {out} has no config.json (nothing to resume)")
         saved = json.loads((out / "config.json").read_text())
         saved.setdefault("test_episodes", 0)       # run folders from before the greedy tests
+        defaults = {f.name: f.default for f in dataclasses.fields(env.config)}
+        for name, value in config["env"].items():  # env settings added since the run was saved, at their defaults
+            if name not in saved.get("env", {}) and value == defaults.get(name, dataclasses.MISSING):
+                saved["env"][name] = value
         if saved != json.loads(config_json):
             diff = sorted(k for k in config if saved.get(k) != config[k])
             raise ValueError(f"--resume: the settings differ from the saved run in {diff}; use the same arguments")

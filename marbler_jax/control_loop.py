@@ -15,6 +15,9 @@ from marbler_jax import cbf, controllers
 from marbler_jax.xp import namespace
 
 
+MARBLER_SAFETY_RADIUS = 0.2
+"""MARBLER's barrier radius between projection points [m] (its ``safe`` setting), also used for ``safe_v2``."""
+
 ENV_RELAXATION = 1.5
 """Over-relaxation of the env's barrier sweeps when ``cbf_relaxation`` is not set.
 
@@ -66,8 +69,11 @@ def barrier_for(config, num_agents: int):
         iterations = default_cbf_iterations(num_agents, config.warm_start_barrier)
     relaxation = ENV_RELAXATION if config.cbf_relaxation is None else config.cbf_relaxation
     solver = dict(iterations=iterations, relaxation=relaxation)
-    if kind in ("safe", "safe_v2"):
-        return cbf.make_barrier(cbf_kind, safety_radius=0.2, **solver)
+    radius = config.cbf_safety_radius
+    if radius is None and kind in ("safe", "safe_v2"):
+        radius = MARBLER_SAFETY_RADIUS
+    if radius is not None:
+        solver["safety_radius"] = radius
     return cbf.make_barrier(cbf_kind, **solver)
 
 
@@ -122,4 +128,4 @@ def finish_step(scenario, poses, scenario_state, actions, collided, outside, ste
     return new_state, rewards, done, violated, obs, step
 
 
-__all__ = ["ENV_RELAXATION", "default_cbf_iterations", "barrier_for", "control", "control_warm", "select_state", "finish_step"]
+__all__ = ["MARBLER_SAFETY_RADIUS", "ENV_RELAXATION", "default_cbf_iterations", "barrier_for", "control", "control_warm", "select_state", "finish_step"]

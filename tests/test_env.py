@@ -284,3 +284,11 @@ def test_v2_env_stops_a_team_the_certificate_cannot_make_safe():
     np.testing.assert_array_equal(control_loop.control(poses, goals, v2.barrier), 0.0)
     old = marbler_jax.make("predator_capture_prey")
     assert float(jnp.abs(control_loop.control(poses, goals, old.barrier)).max()) > 0
+
+
+def test_barrier_radius_is_a_config_field():
+    assert marbler_jax.make("warehouse").barrier.safety_radius == control_loop.MARBLER_SAFETY_RADIUS
+    assert marbler_jax.make("warehouse", cbf_safety_radius=0.25).barrier.safety_radius == 0.25
+    assert marbler_jax.make("warehouse", barrier_certificate="si").barrier.safety_radius == 0.17   # rps default
+    with pytest.raises(ValueError, match="cbf_safety_radius=-0.1 must lie in"):
+        marbler_jax.make("warehouse", cbf_safety_radius=-0.1)

@@ -44,6 +44,12 @@ def test_interrupted_run_resumes_bit_exactly(tmp_path):
         train(out=tmp_path / "cut", **common)
     with pytest.raises(ValueError, match=r"settings differ from the saved run in \['seeds'\]"):
         train(out=tmp_path / "cut", resume=True, **dict(common, seeds=3))
+    # a run saved before an env setting existed resumes when that setting is at its default, not otherwise
+    saved = json.loads((tmp_path / "cut" / "config.json").read_text())
+    del saved["env"]["cbf_safety_radius"]
+    (tmp_path / "cut" / "config.json").write_text(json.dumps(saved))
+    with pytest.raises(ValueError, match=r"settings differ from the saved run in \['env'\]"):
+        train(out=tmp_path / "cut", resume=True, **dict(common, env_overrides={"cbf_safety_radius": 0.3}))
     train(out=tmp_path / "cut", resume=True, **common)
 
     full, cut = np.load(tmp_path / "full" / "params.npz"), np.load(tmp_path / "cut" / "params.npz")

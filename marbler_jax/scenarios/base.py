@@ -49,6 +49,8 @@ class ScenarioConfig:
             ``create_si_barrier_certificate``, at MARBLER's radius 0.2: octagon speed rows, and the
             whole team stopped when its QP has no solution), ``"none"``, or an SI kind of
             :mod:`marbler_jax.cbf`.
+        cbf_safety_radius: the barrier's safety radius between projection points [m] (``None``:
+            MARBLER's 0.2 for ``"safe"`` and ``"safe_v2"``, the rps default of any other kind).
         cbf_iterations: solver sweeps of the barrier per control refresh (``None``:
             :func:`marbler_jax.control_loop.default_cbf_iterations`, 12 cold or 6 warm-started at
             ``control_period=1`` for 4 robots, 20 cold or 10 warm for 20, chosen on env
@@ -77,6 +79,7 @@ class ScenarioConfig:
     update_frequency: int = 29
     control_period: int = 1
     barrier_certificate: str = "safe"
+    cbf_safety_radius: float | None = None
     cbf_iterations: int | None = None
     cbf_relaxation: float | None = None
     cbf_warm_start: bool | None = None
@@ -107,6 +110,8 @@ class ScenarioConfig:
             raise ValueError(f"barrier_certificate={self.barrier_certificate!r} is not one of {list(BARRIERS)}")
         if self.cbf_iterations is not None:
             _positive_int(self, "cbf_iterations")
+        if self.cbf_safety_radius is not None and not 0 < self.cbf_safety_radius <= 1.0:
+            raise ValueError(f"cbf_safety_radius={self.cbf_safety_radius!r} must lie in (0, 1] [m]")
         if self.cbf_relaxation is not None and not 0 < self.cbf_relaxation < 2:
             raise ValueError(f"cbf_relaxation={self.cbf_relaxation!r} must lie in (0, 2) (over-relaxation of the barrier sweeps)")
         from marbler_jax import physics
