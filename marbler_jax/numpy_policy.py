@@ -66,6 +66,37 @@ class NumpyPolicy:
         if self.cell not in CELLS:
             raise ValueError(f"unsupported recurrent cell {self.cell!r} in the policy spec; "
                              f"expected one of {list(CELLS)}")
+        self._check_tensors()
+
+    def _check_tensors(self) -> None:
+        """Every tensor finite, the first layer's input and the last layer's output the widths the spec
+        implies, and one forward pass through all of them; each error names the tensor."""
+        for name, tensor in self.t.items():
+            if not np.issubdtype(tensor.dtype, np.floating):
+                raise ValueError(f"policy tensor {name!r} has dtype {tensor.dtype}, expected floating point")
+            if not np.all(np.isfinite(tensor)):
+                raise ValueError(f"policy tensor {name!r} holds non-finite values (NaN or inf)")
+        actor = self.spec["kind"] == "actor"
+        first, last = (self.spec["layers"][0], self.spec["layers"][-1]) if actor else ("fc1", "fc2")
+        for layer in (first, last):
+            if f"{layer}.kernel" not in self.t:
+                raise ValueError(f"policy tensor {layer + '.kernel'!r} is missing (tensors: {sorted(self.t)})")
+        width = self.obs_dim + (self.num_actions if self.last_action else 0)
+        width += self.num_agents if self.spec["agent_ids"] and self.spec["shared"] else 0
+        kernel_in, kernel_out = self.t[f"{first}.kernel"], self.t[f"{last}.kernel"]
+        if kernel_in.shape[-2] != width:
+            raise ValueError(f"policy tensor {first + '.kernel'!r} takes {kernel_in.shape[-2]} inputs, but the spec "
+                             f"gives {width} (observation, previous action, agent ID)")
+        if isinstance(self.num_actions, int) and kernel_out.shape[-1] != self.num_actions:
+            raise ValueError(f"policy tensor {last + '.kernel'!r} has {kernel_out.shape[-1]} outputs for "
+                             f"{self.num_actions} actions")
+        if not self.spec["shared"] and any(t.shape[0] != self.num_agents for t in self.t.values()):
+            odd = sorted(name for name, t in self.t.items() if t.shape[0] != self.num_agents)
+            raise ValueError(f"per-agent policy tensors {odd} lack the leading axis of {self.num_agents} agents")
+        try:
+            self.values(np.zeros((self.num_agents, self.obs_dim), np.float32))
+        except (ValueError, KeyError) as err:
+            raise ValueError(f"the policy's tensors do not fit together: {err}") from None
 
     @property
     def hidden_width(self) -> int:

@@ -284,3 +284,19 @@ def test_export_never_deletes_what_a_user_made(ippo_simple_nav_run, tmp_path):
     # our own earlier output is replaced; --force replaces a foreign folder on purpose
     assert cli([*args, "--out", str(tmp_path / "p")]) == 0 and cli([*args, "--out", str(tmp_path / "p")]) == 0
     assert cli([*args, "--out", str(notes), "--force"]) == 0 and not (notes / "notes.txt").exists()
+
+
+def test_bundle_refuses_initial_poses_that_cannot_start_an_episode():
+    from marbler_jax.deploy.main import check_initial_poses
+
+    scenario = marbler_jax.make("simple_navigation").scenario
+    good = np.array([[[-1.0, y, 0.0] for y in (-0.6, -0.2, 0.2, 0.6)]])
+    check_initial_poses(good, scenario)
+    bad = {"non-finite": good.copy(), "outside the arena": good.copy(), "in collision": good.copy(),
+           r"must be \[episodes, 4, 3\]": good[:, :3]}
+    bad["non-finite"][0, 1, 0] = np.nan
+    bad["outside the arena"][0, 2, 0] = -1.7
+    bad["in collision"][0, 1, :2] = good[0, 0, :2] + 0.05
+    for message, poses in bad.items():
+        with pytest.raises(ValueError, match=message):
+            check_initial_poses(poses, scenario)

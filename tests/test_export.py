@@ -120,18 +120,34 @@ def test_bad_policy_folders_are_reported(tmp_path):
         load_policy(tmp_path)
     env = marbler_jax.make("simple_navigation")
     cfg = ippo.IPPOConfig(hidden=8)
-    export_params("ippo", cfg, _params(ippo, cfg, env), env, tmp_path / "p")
-    next((tmp_path / "p").glob("actor_Dense_0_kernel.npy")).write_bytes(b"garbage")
-    with pytest.raises(ValueError, match="cannot load the policy"):
-        load_policy(tmp_path / "p")
-    policy = NumpyPolicy({"format": "marbler-jax-policy/1", "kind": "actor", "num_agents": 4,
-                                                      "obs_dim": 10, "shared": True, "agent_ids": True}, {})
+    good = export_params("ippo", cfg, _params(ippo, cfg, env), env, tmp_path / "p")
     with pytest.raises(ValueError, match=r"observations must be \[..., 4, 10\]"):
-        policy.inputs(np.zeros((3, 10)))
+        good.inputs(np.zeros((3, 10)))
+    last = good.spec["layers"][-1] + ".kernel"
+
+    def broken(name, value):
+        return dict(good.t, **{name: value})
+
+    # tensors that would reach the robots wrong: each error names the tensor
+    with pytest.raises(ValueError, match=f"policy tensor '{last}' has 6 outputs for 5 actions"):
+        NumpyPolicy(good.spec, broken(last, np.zeros(good.t[last].shape[:-1] + (6,), np.float32)))
+    nan = good.t["actor.Dense_0.kernel"].copy()
+    nan[0, 0] = np.nan
+    with pytest.raises(ValueError, match="policy tensor 'actor.Dense_0.kernel' holds non-finite values"):
+        NumpyPolicy(good.spec, broken("actor.Dense_0.kernel", nan))
+    with pytest.raises(ValueError, match="policy tensor 'actor.Dense_0.kernel' takes 10 inputs, but the spec gives 14"):
+        NumpyPolicy(good.spec, broken("actor.Dense_0.kernel", good.t["actor.Dense_0.kernel"][:10]))
+    with pytest.raises(ValueError, match="do not fit together"):
+        NumpyPolicy(good.spec, broken("actor.Dense_1.kernel", np.zeros((3, 8), np.float32)))
+    with pytest.raises(ValueError, match="policy tensor 'fc1.kernel' is missing"):
+        NumpyPolicy({"format": "marbler-jax-policy/1", "kind": "q_agent", "recurrent": False, "num_agents": 4,
+                     "obs_dim": 10, "hidden": 8, "shared": True, "agent_ids": True}, {})
     q_agent = {"format": "marbler-jax-policy/1", "kind": "q_agent", "recurrent": True, "num_agents": 4,
                "obs_dim": 10, "hidden": 8, "shared": True, "agent_ids": True}
-    assert NumpyPolicy(q_agent, {}).cell == "gru"               # folders written before `cell` existed
     with pytest.raises(ValueError, match="unsupported recurrent cell 'lstm'"):
         NumpyPolicy(dict(q_agent, cell="lstm"), {})
     with pytest.raises(ValueError, match="a policy with last_action needs num_actions"):
         NumpyPolicy(dict(q_agent, last_action=True), {})
+    next((tmp_path / "p").glob("actor_Dense_0_kernel.npy")).write_bytes(b"garbage")
+    with pytest.raises(ValueError, match="cannot load the policy"):
+        load_policy(tmp_path / "p")

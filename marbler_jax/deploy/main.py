@@ -24,6 +24,7 @@ import sys
 
 import numpy as np
 
+from marbler_jax import physics
 from marbler_jax.deploy.robotarium_loop import run_episode
 from marbler_jax.numpy_policy import load_policy
 from marbler_jax.scenarios.base import build_config
@@ -42,6 +43,19 @@ def load_config(folder: str = HERE) -> dict:
     return config
 
 
+def check_initial_poses(poses, scenario) -> None:
+    """``initial_poses.npy`` must be ``[E, N, 3]``, finite, inside the arena and free of collisions."""
+    params = physics.get_params(scenario.config.physics)
+    if poses.ndim != 3 or poses.shape[1:] != (scenario.num_agents, 3):
+        raise ValueError(f"initial_poses.npy must be [episodes, {scenario.num_agents}, 3], got {poses.shape}")
+    if not np.all(np.isfinite(poses)):
+        raise ValueError("initial_poses.npy holds non-finite values")
+    if np.any(physics.out_of_bounds(params, poses)):
+        raise ValueError(f"initial_poses.npy puts a robot outside the arena {params.arena}")
+    if np.any(physics.collisions(params, poses)):
+        raise ValueError("initial_poses.npy puts two robots in collision")
+
+
 def build(config: dict, folder: str = HERE):
     """``(scenario, policy, barrier, initial poses [E, N, 3], initial states)`` of a bundle config."""
     import importlib
@@ -54,8 +68,11 @@ def build(config: dict, folder: str = HERE):
     if policy.spec["num_agents"] != scenario.num_agents or policy.spec["obs_dim"] != scenario.obs_dim:
         raise ValueError(f"policy ({policy.spec['num_agents']} agents, obs {policy.spec['obs_dim']}) does not fit "
                          f"{config['scenario']} ({scenario.num_agents} agents, obs {scenario.obs_dim})")
+    if policy.num_actions is not None and policy.num_actions != scenario.num_actions:
+        raise ValueError(f"policy has {policy.num_actions} actions, {config['scenario']} {scenario.num_actions}")
     barrier = barrier_for(scenario.config, scenario.num_agents)
     poses = np.load(os.path.join(folder, "initial_poses.npy"), allow_pickle=False)
+    check_initial_poses(poses, scenario)
     fields = {name: np.load(os.path.join(folder, f"initial_{name}.npy"), allow_pickle=False)
               for name in config["state_fields"]}
     states = [state_cls(**{name: value[k] for name, value in fields.items()}) for k in range(len(poses))]
