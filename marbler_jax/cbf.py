@@ -345,10 +345,10 @@ class Barrier:
         dxi = controllers.uni_to_si_dynamics(u_nom, x, d)
         if self.is_differential_drive:   # exact inverse of uni_to_si_dynamics: no omega clip
             dxi, info = solve_si(self, dxi, points, warm_start, headings=x[..., 2])
-            return controllers.si_to_uni_mapping(dxi, x, d, angular_velocity_limit=math.inf), info
+            return _zero_broken(controllers.si_to_uni_mapping(dxi, x, d, angular_velocity_limit=math.inf), x, u_nom), info
         if not self.is_v2:
             dxi, info = solve_si(self, dxi, points, warm_start)
-            return controllers.si_to_uni_mapping(dxi, x, d), info
+            return _zero_broken(controllers.si_to_uni_mapping(dxi, x, d), x, u_nom), info
         n = x.shape[-2]
         if obstacles is not None:
             xp = namespace(dxi, obstacles)
@@ -356,7 +356,15 @@ class Barrier:
             dxi = xp.concatenate([dxi, xp.zeros_like(obstacles)], axis=-2)
         dxi, info = solve_si(self, dxi, points, warm_start)
         u = controllers.si_to_uni_mapping(dxi[..., :n, :], x, d, angular_velocity_limit=math.inf)
-        return _zero_if_infeasible(self, u, info)
+        return _zero_if_infeasible(self, _zero_broken(u, x, u_nom), info)
+
+
+def _zero_broken(u, x, u_nom):
+    """Zero velocity for robots whose pose or nominal input is not finite (mapping back through a
+    non-finite heading would make their command NaN again)."""
+    xp = namespace(u, x)
+    finite = xp.all(xp.isfinite(x), axis=-1) & xp.all(xp.isfinite(u_nom), axis=-1)
+    return xp.where(finite[..., None], u, 0)
 
 
 def _pass_through(barrier: Barrier, u_nom, n: int) -> CertificateInfo:
@@ -560,6 +568,14 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
     """
     xp = namespace(u_nom, positions)
     n = positions.shape[-2]
+    # A robot with a non-finite position, heading or nominal input is taken out of the QP (no rows,
+    # zero velocity, the team reported not feasible): the others are still certified against each other.
+    broken = ~(xp.all(xp.isfinite(positions), axis=-1) & xp.all(xp.isfinite(u_nom), axis=-1))     # [..., N]
+    if headings is not None:
+        broken = broken | ~xp.isfinite(headings)
+        headings = xp.where(broken, 0, headings)
+    positions = xp.where(broken[..., None], 0, positions)
+    u_nom = xp.where(broken[..., None], 0, u_nom)
     if barrier.magnitude_limit is None or barrier.is_v2:   # v2 limits the magnitude by QP rows instead
         u_hat = u_nom
     else:
@@ -579,6 +595,12 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
     heads = None if headings is None else to_minor(headings, nb, xp)    # [N, B]
     e, b, d2, valid = _pair_rows(barrier, xp.concatenate([points, pad2], axis=0), n, xp,
                                  None if heads is None else xp.concatenate([heads, pad2[:, 0]], axis=0))
+    out = xp.concatenate([to_minor(broken, nb, xp), xp.zeros((m - n, flat_b), dtype=bool)], axis=0)   # [N', B]
+    first_robot, second_robot = round_robin(n)
+    cut = out[first_robot] | out[second_robot]                            # [R, H, B] rows of a broken robot
+    e = xp.where(cut[:, :, None], 0, e)
+    b = xp.where(cut, 1, b)
+    d2 = xp.where(cut, 0, d2)
     usable = d2 > 0
     inv_norm = xp.where(usable, 1 / xp.sqrt(xp.where(usable, d2, 1)), 0)  # 1/|e|, 0 where unusable
     nx, ny = e[:, :, 0] * inv_norm, e[:, :, 1] * inv_norm
@@ -595,6 +617,8 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
     lo = hi = None
     if boxed:
         lo, hi = _boxes(barrier, points, xp)
+        lo = xp.where(out[:n, None], -1, lo)
+        hi = xp.where(out[:n, None], 1, hi)
         lo_p, hi_p = layout(lo), layout(hi)
     wheeled = barrier.is_differential_drive
     if wheeled:
@@ -704,7 +728,9 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
         wheel_rows = (c_left, c_right, wheel_norm2) + wheels
     poly = robot_order(xp.stack(lam_poly, axis=1)) if polygon else None    # [N, 8, B]
     info = _diagnostics(barrier, u, e, b, d2, valid, lam, lo, hi, box, xp, wheel_rows, poly)
-    info = CertificateInfo(*(v.reshape(batch) for v in info[:3]),
+    u = xp.where(out[:n, None], 0, u)
+    info = CertificateInfo(info.max_violation.reshape(batch), (info.feasible & ~xp.any(out, axis=0)).reshape(batch),
+                           info.active.reshape(batch),
                            stopped=None if info.stopped is None else info.stopped.reshape(batch))
     unbatch = lambda v: from_minor(v, batch, xp)  # noqa: E731
     lower, upper = (unbatch(v) for v in box) if boxed else (None, None)

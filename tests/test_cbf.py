@@ -345,3 +345,22 @@ def test_round_robin_covers_every_pair_once():
         assert pairs == {(i, j) for i in range(n) for j in range(i + 1, n)}
         assert len([p for p in zip(first.ravel(), second.ravel()) if max(p) < n]) == n * (n - 1) // 2
 
+
+
+@pytest.mark.parametrize("kind", cbf.KINDS)
+def test_a_non_finite_robot_is_taken_out_and_the_others_are_still_certified(kind):
+    rng = np.random.default_rng(3)
+    barrier = cbf.make_barrier(kind)
+    dim = 3 if kind in cbf.UNI_KINDS else 2
+    x = np.concatenate([rng.uniform(-1, 1, (6, 2)), rng.uniform(-3, 3, (6, dim - 2))], -1)
+    u = rng.normal(size=(6, 2)) * 0.1
+    alone, _ = barrier.solve(u[:5], x[:5])
+    for bad in (("x", np.nan), ("x", np.inf), ("u", np.nan)):
+        xb, ub = x.copy(), u.copy()
+        (xb if bad[0] == "x" else ub)[5, 0] = bad[1]
+        out, info = barrier.solve(ub, xb)
+        np.testing.assert_array_equal(out[5], 0.0)
+        np.testing.assert_allclose(out[:5], alone, atol=1e-12)
+        assert not bool(info.feasible)
+        jitted = np.asarray(jax.jit(barrier)(jnp.asarray(ub, jnp.float32), jnp.asarray(xb, jnp.float32)))
+        assert np.all(np.isfinite(jitted)) and np.all(jitted[5] == 0)
