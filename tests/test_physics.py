@@ -206,14 +206,18 @@ def test_held_ticks_matches_the_tick_by_tick_rps_loop(n, stop, monkeypatch):
 
 def test_actuator_safe_commands_pass_every_rps_actuator_check():
     rng = np.random.default_rng(0)
-    u = np.stack([rng.uniform(-0.4, 0.4, 2000), rng.uniform(-8, 8, 2000)], -1)
+    u = np.stack([rng.uniform(-0.4, 0.4, 100_000), rng.uniform(-8, 8, 100_000)], -1)
     safe = physics.actuator_safe(u)
     for preset in ("robotarium", "marbler", "rps2024"):          # L = 0.11 and 0.105
         params = physics.PRESETS[preset]
         checked = physics.threshold(params, safe) if preset == "marbler" else safe   # 6bb184e clips v, w first
-        assert np.abs(physics.uni_to_diff(params, checked)).max() <= 12.5 + 1e-9, preset
-    # on rps v2 the clipped command moves the robot exactly as rps's own wheel clip would
-    np.testing.assert_allclose(physics.threshold(physics.PRESETS["robotarium"], u), safe, atol=1e-12)
+        # rps's own conversion, as it checks (a wheel clipped to exactly 12.5 comes back 1.8e-15 above it)
+        length, r = params.base_length, params.wheel_radius
+        wheels = np.abs(np.stack([2 * checked[:, 0] - length * checked[:, 1],
+                                  2 * checked[:, 0] + length * checked[:, 1]]) / (2 * r))
+        assert not np.any(wheels > 12.5), preset
+    # on rps v2 the clipped command moves the robot as rps's own wheel clip would
+    np.testing.assert_allclose(physics.threshold(physics.PRESETS["robotarium"], u), safe, atol=1e-8)
     # a command within the limits is sent unchanged
     calm = np.array([[0.1, 1.0], [-0.05, -2.0]])
     np.testing.assert_allclose(physics.actuator_safe(calm), calm, atol=1e-12)

@@ -3,7 +3,7 @@
 ``python -m marbler_jax.deploy.replay BUNDLE TRACE_DIR`` prints one JSON line per episode (see
 :func:`replay_trace`): how far the poses the bundle logged (from rps or the robots) are from what
 the JAX env produces from the same start state and actions, over the whole episode and per step,
-and whether rewards and greedy actions agree. The env uses the ``"robotarium"`` physics preset: the
+and whether rewards and greedy actions agree. The env uses the ``"deployed"`` physics preset: the
 bundle clips every command to the motors' limits at rps v2's base length
 (:func:`marbler_jax.physics.actuator_safe`, the same wheel clip as that preset), after which the
 PyPI rps's own v / omega clip changes nothing, so that preset moves the robots as either rps does. Set ``JAX_ENABLE_X64=1`` to replay in float64: the bundle computes in
@@ -28,7 +28,7 @@ from marbler_jax.env import EnvState
 from marbler_jax.numpy_policy import load_policy
 
 
-def replay_trace(bundle, trace, physics: str = "robotarium") -> list[dict]:
+def replay_trace(bundle, trace, physics: str = "deployed") -> list[dict]:
     """Compare each episode the bundle logged in ``trace`` with the JAX env.
 
     Two replays from the episode's start state with the bundle's actions: a *free* run (the env
