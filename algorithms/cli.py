@@ -435,6 +435,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .driver import ALGORITHMS
     from .recipes import RECIPE_NAMES
     from marbler_jax import cbf, physics
+    from marbler_jax.control_loop import ROBOTS_CONTROL_PERIOD
 
     from marbler_jax import __version__
 
@@ -508,7 +509,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="also write a flat Robotarium submission bundle (main.py + files) to this folder")
     ex.add_argument("--episodes", type=int, default=2, help="episodes the bundle runs (start states drawn now)")
     ex.add_argument("--bundle-seed", type=int, default=0, help="seed of the bundle's start states")
-    ex.add_argument("--control-period", type=_period, default=1, metavar="N|train",
+    ex.add_argument("--control-period", type=_period, default=ROBOTS_CONTROL_PERIOD, metavar="N|train",
                     help="Robotarium iterations between the bundle's controller and barrier refreshes: 1 is "
                          "the robots' loop; 'train' deploys the period the policy trained with")
     ex.add_argument("--force", action="store_true",

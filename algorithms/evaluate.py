@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import marbler_jax
+from marbler_jax.control_loop import ROBOTS_CONTROL_PERIOD
 from marbler_jax.rollout import first_episode_metrics, make_rollout
 
 # MARBLER paper, Table II, simulated experiments: (mean, std) per scenario / algorithm / metric.
@@ -118,10 +119,6 @@ def best_seed(run) -> tuple[int, float]:
     return index, float(scores[index])
 
 
-DEPLOYED_PERIOD = 1
-"""The control period of the robots' loop: what ``marbler-jax export`` deploys by default."""
-
-
 def evaluate_run(run, episodes: int = 100, checkpoint: str = "best", seed: int = 0, progress: bool = False,
                  seed_selection: str = "all") -> dict:
     """Table II metrics of every seed of run folder ``run`` and pooled over seeds, or with
@@ -150,8 +147,8 @@ def evaluate_run(run, episodes: int = 100, checkpoint: str = "best", seed: int =
     per_seed, pooled = [], {}
     seeds = [best_seed(run)[0]] if seed_selection == "best" else list(range(n_seeds))
     loops = {"trained": env}
-    if env.config.control_period != DEPLOYED_PERIOD:
-        loops["deployed"] = marbler_jax.make(config["scenario"], **dict(config["env"], control_period=DEPLOYED_PERIOD))
+    if env.config.control_period != ROBOTS_CONTROL_PERIOD:
+        loops["deployed"] = marbler_jax.make(config["scenario"], **dict(config["env"], control_period=ROBOTS_CONTROL_PERIOD))
     jobs = [(name, s) for name in loops for s in seeds]
     if progress:
         from tqdm.auto import tqdm
@@ -172,7 +169,7 @@ def evaluate_run(run, episodes: int = 100, checkpoint: str = "best", seed: int =
                   control_period=env.config.control_period, pooled=summaries["trained"], per_seed=per_seed["trained"],
                   paper=PAPER.get(config["scenario"], {}).get(config["algo"]))
     if "deployed" in loops:
-        result["deployed"] = dict(control_period=DEPLOYED_PERIOD, pooled=summaries["deployed"],
+        result["deployed"] = dict(control_period=ROBOTS_CONTROL_PERIOD, pooled=summaries["deployed"],
                                   per_seed=per_seed["deployed"])
     return result
 
@@ -208,4 +205,4 @@ def markdown_table(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["DEPLOYED_PERIOD", "evaluate_run", "best_seed", "markdown_table", "greedy_episodes", "first_episodes", "restore_params", "PAPER"]
+__all__ = ["evaluate_run", "best_seed", "markdown_table", "greedy_episodes", "first_episodes", "restore_params", "PAPER"]

@@ -17,6 +17,7 @@ import numpy as np
 
 from .driver import flatten_params, select_seed
 from .networks import QAgent
+from marbler_jax.control_loop import ROBOTS_CONTROL_PERIOD
 from marbler_jax.deploy.bundle import check_target, replace_folder, write_bundle
 from marbler_jax.numpy_policy import FORMAT, SPEC_FILE, NumpyPolicy
 
@@ -62,7 +63,7 @@ def export_params(algo: str, cfg, params, env, out, extra: dict | None = None, f
 
 
 def export_policy(run, out, seed_index: int = 0, checkpoint: str = "best", bundle=None, episodes: int = 2,
-                  bundle_seed: int = 0, control_period: int | None = 1, force: bool = False) -> dict:
+                  bundle_seed: int = 0, control_period: int | None = ROBOTS_CONTROL_PERIOD, force: bool = False) -> dict:
     """Export seed ``seed_index`` of run folder ``run`` to the policy folder ``out``; returns the spec.
 
     With ``bundle`` (a folder), also write the Robotarium submission bundle there

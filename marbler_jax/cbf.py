@@ -471,13 +471,14 @@ def make_barrier(kind: str = "si2", **params) -> Barrier:
     )
 
 
-def _pair_rows(barrier: Barrier, points, n: int, xp, headings=None):
+def _pair_rows(barrier: Barrier, points, n: int, xp, headings=None, broken=None):
     """Pair rows in round layout, batch-minor.
 
     ``points [N', 2, B]`` are the robots' positions with a zero phantom row for odd ``n``
     (``headings [N', B]`` likewise, ``uni_dd`` kinds only). Returns ``e [R, H, 2, B]``, ``b`` and
     ``d2 = |e|^2`` ``[R, H, B]``, and the static mask ``valid [R, H]`` of rows between two real
     robots. Row (r, k) reads ``-2 e.u_first + 2 e.u_second <= b`` with ``e = x_first - x_second``.
+    The rows of a ``broken [N', B]`` robot are emptied (``e = 0``, ``b = 1``: the solver skips them).
     """
     first, second = round_robin(n)
     valid = (first < n) & (second < n)
@@ -494,6 +495,11 @@ def _pair_rows(barrier: Barrier, points, n: int, xp, headings=None):
         b = b - barrier.disturbance * (_wheel_l1(barrier, e, headings[first], xp)
                                        + _wheel_l1(barrier, e, headings[second], xp))
     b = xp.where(valid[:, :, None], b, xp.ones_like(h))
+    if broken is not None:
+        cut = broken[first] | broken[second]                            # [R, H, B]
+        e = xp.where(cut[:, :, None], 0, e)
+        b = xp.where(cut, 1, b)
+        d2 = xp.where(cut, 0, d2)
     return e, b, d2, valid
 
 
@@ -593,14 +599,9 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
     flat_b = points.shape[-1]
     pad2 = xp.zeros((m - n, 2, flat_b), dtype=dtype)
     heads = None if headings is None else to_minor(headings, nb, xp)    # [N, B]
-    e, b, d2, valid = _pair_rows(barrier, xp.concatenate([points, pad2], axis=0), n, xp,
-                                 None if heads is None else xp.concatenate([heads, pad2[:, 0]], axis=0))
     out = xp.concatenate([to_minor(broken, nb, xp), xp.zeros((m - n, flat_b), dtype=bool)], axis=0)   # [N', B]
-    first_robot, second_robot = round_robin(n)
-    cut = out[first_robot] | out[second_robot]                            # [R, H, B] rows of a broken robot
-    e = xp.where(cut[:, :, None], 0, e)
-    b = xp.where(cut, 1, b)
-    d2 = xp.where(cut, 0, d2)
+    e, b, d2, valid = _pair_rows(barrier, xp.concatenate([points, pad2], axis=0), n, xp,
+                                 None if heads is None else xp.concatenate([heads, pad2[:, 0]], axis=0), out)
     usable = d2 > 0
     inv_norm = xp.where(usable, 1 / xp.sqrt(xp.where(usable, d2, 1)), 0)  # 1/|e|, 0 where unusable
     nx, ny = e[:, :, 0] * inv_norm, e[:, :, 1] * inv_norm

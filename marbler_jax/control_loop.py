@@ -15,6 +15,10 @@ from marbler_jax import cbf, controllers
 from marbler_jax.xp import namespace
 
 
+ROBOTS_CONTROL_PERIOD = 1
+"""The robots' loop: controller and barrier every Robotarium iteration (what ``marbler-jax export``
+deploys unless told otherwise, and the loop ``evaluate`` compares a policy's training loop with)."""
+
 MARBLER_SAFETY_RADIUS = 0.2
 """MARBLER's barrier radius between projection points [m] (its ``safe`` setting), also used for ``safe_v2``."""
 
@@ -63,9 +67,7 @@ def barrier_for(config, num_agents: int):
         return None
     cbf_kind = {"safe": "si2", "default": "si", "safe_v2": "si_v2"}.get(kind, kind)
     iterations = config.cbf_iterations
-    if iterations is None and cbf_kind in cbf.V2_KINDS:
-        iterations = cbf.default_iterations(num_agents, cbf_kind)
-    elif iterations is None:
+    if iterations is None and cbf_kind not in cbf.V2_KINDS:     # v2: make_barrier's own default
         iterations = default_cbf_iterations(num_agents, config.warm_start_barrier)
     relaxation = ENV_RELAXATION if config.cbf_relaxation is None else config.cbf_relaxation
     solver = dict(iterations=iterations, relaxation=relaxation)
@@ -128,4 +130,4 @@ def finish_step(scenario, poses, scenario_state, actions, collided, outside, ste
     return new_state, rewards, done, violated, obs, step
 
 
-__all__ = ["MARBLER_SAFETY_RADIUS", "ENV_RELAXATION", "default_cbf_iterations", "barrier_for", "control", "control_warm", "select_state", "finish_step"]
+__all__ = ["ROBOTS_CONTROL_PERIOD", "MARBLER_SAFETY_RADIUS", "ENV_RELAXATION", "default_cbf_iterations", "barrier_for", "control", "control_warm", "select_state", "finish_step"]

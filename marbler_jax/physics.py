@@ -97,7 +97,6 @@ PRESETS: dict[str, RobotariumParams] = {
 # bundle's run uses it, since after it neither rps's own clip changes anything.
 PRESETS["deployed"] = PRESETS["robotarium"].replace(
     max_wheel_velocity=PRESETS["robotarium"].max_wheel_velocity * (1 - 1e-9))
-_DEPLOYED = PRESETS["deployed"]
 DEFAULT_PRESET = "robotarium"
 
 
@@ -158,7 +157,7 @@ def actuator_safe(velocities):
     relative: the clip stops that far below the limit, because a wheel clipped to exactly 12.5 comes
     back from rps's (v, omega) -> wheel conversion as 12.500000000000002 in ~0.6 % of clipped commands.
     """
-    return threshold(_DEPLOYED, velocities)
+    return threshold(PRESETS["deployed"], velocities)
 
 
 def wrap_angle(theta):
