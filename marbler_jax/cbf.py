@@ -334,6 +334,30 @@ class Barrier:
             return _jax_solver(self)(u_nom, x, warm_start, obstacles)
         return self._solve(u_nom, x, warm_start, obstacles)
 
+    def solve_minor(self, u_nom, points, warm_start: Multipliers | None = None):
+        """SI kinds: the certified input for batch-minor ``u_nom``, ``points`` ``[N, 2, B]``, warm-started
+        from batch-minor ``warm_start`` (see :func:`solve_si_minor`); returns ``(u [N, 2, B],
+        multipliers)`` without diagnostics except where the result needs them (the v2 kinds' stop rule).
+
+        What a batch-minor control loop calls every refresh: no layout change, no unused work.
+        Every team is solved: skipping the teams whose nominal input already satisfies every row (and
+        gathering the others into a smaller slice) was measured slower on the CPU backend, since the
+        check alone costs about what the warm-started sweeps it would save do.
+        """
+        if self.is_unicycle:
+            raise ValueError(f"solve_minor takes the SI kinds {SI_KINDS}, not {self.kind!r}")
+        xp = namespace(u_nom, points)
+        n = points.shape[0]
+        if n == 0 or (self.is_v2 and n < 2):     # nothing to solve; rps v2 passes a lone robot through
+            if warm_start is None:
+                zeros = self.initial_multipliers(n, (points.shape[-1],), u_nom.dtype, xp)
+                warm_start = Multipliers(*(None if v is None else xp.moveaxis(v, 0, -1) for v in zeros))
+            return u_nom, warm_start
+        u, multipliers, info = solve_si_minor(self, u_nom, points, warm_start, diagnose=self.is_v2)
+        if self.is_v2:
+            u = xp.where(info.stopped[None, None], xp.zeros_like(u), u)
+        return u, multipliers
+
     def _solve(self, u_nom, x, warm_start=None, obstacles=None):
         if self.is_v2 and x.shape[-2] < 2:      # rps v2 returns a lone robot's command unchanged
             return u_nom, _pass_through(self, u_nom, x.shape[-2])
@@ -564,42 +588,67 @@ def _polygon(n: int) -> np.ndarray:
 def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None = None, headings=None):
     """The SI certificate QP for ``positions [..., N, 2]``; returns ``(u [..., N, 2], info)``.
 
-    Every batch axis is folded into the last (minor) axis first, so each vector step -- the row
-    set-up, the sweeps and the diagnostics -- runs over the whole batch with unit stride. Pair rows
-    are scaled to unit normals (``e_hat . (u_second - u_first) <= b / (2 |e|)``; the same QP, so the
-    same iterates) and their multipliers carried scaled by ``2 |e|``: a row's step then needs three
-    numbers per pair instead of four. ``warm_start`` (multipliers of a previous solve) sets the
-    initial multipliers and the matching primal point ``u_hat - A^T lambda``. The ``uni_dd`` kinds
-    pass the robots' ``headings [..., N]`` (their disturbance term and wheel rows).
+    Every batch axis is folded into the last (minor) axis first and :func:`solve_si_minor` solves
+    the folded problem. The ``uni_dd`` kinds pass the robots' ``headings [..., N]`` (their
+    disturbance term and wheel rows).
     """
     xp = namespace(u_nom, positions)
     n = positions.shape[-2]
-    # A robot with a non-finite position, heading or nominal input is taken out of the QP (no rows,
-    # zero velocity, the team reported not feasible): the others are still certified against each other.
-    broken = ~(xp.all(xp.isfinite(positions), axis=-1) & xp.all(xp.isfinite(u_nom), axis=-1))     # [..., N]
-    if headings is not None:
-        broken = broken | ~xp.isfinite(headings)
-        headings = xp.where(broken, 0, headings)
-    positions = xp.where(broken[..., None], 0, positions)
-    u_nom = xp.where(broken[..., None], 0, u_nom)
-    if barrier.magnitude_limit is None or barrier.is_v2:   # v2 limits the magnitude by QP rows instead
-        u_hat = u_nom
-    else:
-        u_hat = controllers.cap_norm(u_nom, barrier.magnitude_limit)
-    batch = u_hat.shape[:-2]
+    batch = u_nom.shape[:-2]
     if n == 0:
+        u_hat = u_nom if barrier.magnitude_limit is None or barrier.is_v2 else controllers.cap_norm(
+            u_nom, barrier.magnitude_limit)
         zero = xp.zeros(batch, dtype=u_hat.dtype)
         return u_hat, CertificateInfo(zero, zero == 0, zero.astype(xp.int32),
                                       barrier.initial_multipliers(0, batch, u_hat.dtype, xp))
+    nb = len(batch)
+    fold = lambda v: None if v is None else to_minor(v, nb, xp)  # noqa: E731
+    unbatch = lambda v: None if v is None else from_minor(v, batch, xp)  # noqa: E731
+    warm = None if warm_start is None else Multipliers(*(fold(v) for v in warm_start))
+    u, multipliers, info = solve_si_minor(barrier, fold(u_nom), fold(positions), warm, fold(headings))
+    info = CertificateInfo(*(None if v is None else v.reshape(batch) for v in info))
+    return unbatch(u), info._replace(multipliers=Multipliers(*(unbatch(v) for v in multipliers)))
+
+
+def solve_si_minor(barrier: Barrier, u_nom, points, warm_start: Multipliers | None = None, headings=None,
+                   diagnose: bool = True):
+    """:func:`solve_si` on batch-minor arrays: ``u_nom``, ``points`` ``[N, 2, B]`` (N >= 1),
+    ``headings [N, B]`` (``uni_dd`` kinds), ``warm_start`` with each field batch-minor (``pairs
+    [R, H, B]``, ``lower``/``upper``/``wheel_*`` ``[N, 2, B]``, ``polygon [N, 8, B]``).
+
+    Returns ``(u [N, 2, B], multipliers (batch-minor), info)``, where ``info`` holds ``[B]`` arrays
+    (``multipliers`` unset), or is ``None`` when ``diagnose`` is False: the row violations at ``u``
+    are then not computed (a caller that only needs ``u`` and the multipliers saves that work).
+
+    Each vector step -- the row set-up, the sweeps and the diagnostics -- runs over the whole batch
+    with unit stride. Pair rows are scaled to unit normals (``e_hat . (u_second - u_first) <= b / (2
+    |e|)``; the same QP, so the same iterates) and their multipliers carried scaled by ``2 |e|``: a
+    row's step then needs three numbers per pair instead of four. ``warm_start`` (multipliers of a
+    previous solve) sets the initial multipliers and the matching primal point ``u_hat - A^T lambda``.
+    """
+    xp = namespace(u_nom, points)
+    n = points.shape[0]
+    # A robot with a non-finite position, heading or nominal input is taken out of the QP (no rows,
+    # zero velocity, the team reported not feasible): the others are still certified against each other.
+    broken = ~(xp.all(xp.isfinite(points), axis=1) & xp.all(xp.isfinite(u_nom), axis=1))     # [N, B]
+    heads = headings
+    if heads is not None:
+        broken = broken | ~xp.isfinite(heads)
+        heads = xp.where(broken, 0, heads)
+    points = xp.where(broken[:, None], 0, points)
+    u_nom = xp.where(broken[:, None], 0, u_nom)
+    if barrier.magnitude_limit is None or barrier.is_v2:   # v2 limits the magnitude by QP rows instead
+        u0 = u_nom
+    else:
+        norm = xp.sqrt(u_nom[:, 0] * u_nom[:, 0] + u_nom[:, 1] * u_nom[:, 1])[:, None]
+        limit = barrier.magnitude_limit
+        u0 = u_nom * xp.where(norm > limit, limit / xp.where(norm > limit, norm, 1), 1)
     rounds, half = round_robin(n)[0].shape
     m = n + n % 2
-    nb = len(batch)
-    dtype = u_hat.dtype
-    points = to_minor(positions, nb, xp)                                  # [N, 2, B]
+    dtype = u0.dtype
     flat_b = points.shape[-1]
     pad2 = xp.zeros((m - n, 2, flat_b), dtype=dtype)
-    heads = None if headings is None else to_minor(headings, nb, xp)    # [N, B]
-    out = xp.concatenate([to_minor(broken, nb, xp), xp.zeros((m - n, flat_b), dtype=bool)], axis=0)   # [N', B]
+    out = xp.concatenate([broken, xp.zeros((m - n, flat_b), dtype=bool)], axis=0)   # [N', B]
     e, b, d2, valid = _pair_rows(barrier, xp.concatenate([points, pad2], axis=0), n, xp,
                                  None if heads is None else xp.concatenate([heads, pad2[:, 0]], axis=0), out)
     usable = d2 > 0
@@ -682,7 +731,6 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
             state, lam_poly = polygon_step(state, lam_poly, w)
         return state, tuple(lam), tuple(box), wheels, lam_poly
 
-    u0 = to_minor(u_hat, nb, xp)  # [N, 2, B]
     lam0 = xp.zeros((rounds, half, flat_b), dtype=dtype)
     zero_box = xp.zeros((m, 2, flat_b), dtype=dtype)
     zero_wheel = xp.zeros((m, flat_b), dtype=dtype)
@@ -691,25 +739,25 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
     poly0 = (zero_wheel,) * 8 if polygon else ()
     if warm_start is not None:
         # Rows that cannot act (phantom, coincident robots) start at zero; u0 = u_hat - A^T lambda0.
-        lam_w = xp.maximum(to_minor(warm_start.pairs, nb, xp), 0) * (2 * d2 * inv_norm)  # scaled by 2|e|
+        lam_w = xp.maximum(warm_start.pairs, 0) * (2 * d2 * inv_norm)  # scaled by 2|e|
         inc = xp.asarray(_incidence(n)[:n], dtype=dtype)
         u0 = u0 + xp.stack([xp.einsum("srh,rhb->sb", inc, nx * lam_w),
                             xp.einsum("srh,rhb->sb", inc, ny * lam_w)], axis=1)
         lam0 = lam_w
         if boxed:
-            lo_w = xp.maximum(to_minor(warm_start.lower, nb, xp), 0)   # [N, 2, B]
-            hi_w = xp.maximum(to_minor(warm_start.upper, nb, xp), 0)
+            lo_w = xp.maximum(warm_start.lower, 0)   # [N, 2, B]
+            hi_w = xp.maximum(warm_start.upper, 0)
             u0 = u0 + lo_w - hi_w
             box0 = (layout(lo_w), layout(hi_w))
         if wheeled:
-            w_lo = xp.maximum(to_minor(warm_start.wheel_lower, nb, xp), 0)   # [N, 2 wheels, B]
-            w_hi = xp.maximum(to_minor(warm_start.wheel_upper, nb, xp), 0)
+            w_lo = xp.maximum(warm_start.wheel_lower, 0)   # [N, 2 wheels, B]
+            w_hi = xp.maximum(warm_start.wheel_upper, 0)
             net = (w_lo - w_hi)[:, :, None]
             u0 = u0 + c_left * net[:, 0] + c_right * net[:, 1]
             w_lo, w_hi = layout(w_lo), layout(w_hi)
             wheels0 = (w_lo[:, 0], w_hi[:, 0], w_lo[:, 1], w_hi[:, 1])
         if polygon:
-            p_w = xp.maximum(to_minor(warm_start.polygon, nb, xp), 0)     # [N, 8, B]
+            p_w = xp.maximum(warm_start.polygon, 0)     # [N, 8, B]
             normals = xp.asarray(_POLYGON_NORMALS, dtype=dtype)            # [8, 2]
             u0 = u0 - xp.einsum("njb,jc->ncb", p_w, normals)
             p_w = layout(p_w)
@@ -728,17 +776,14 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
         wheels = (xp.stack([l_lo, r_lo], axis=1), xp.stack([l_hi, r_hi], axis=1))   # [N, 2 wheels, B]
         wheel_rows = (c_left, c_right, wheel_norm2) + wheels
     poly = robot_order(xp.stack(lam_poly, axis=1)) if polygon else None    # [N, 8, B]
-    info = _diagnostics(barrier, u, e, b, d2, valid, lam, lo, hi, box, xp, wheel_rows, poly)
+    info = None
+    if diagnose:
+        info = _diagnostics(barrier, u, e, b, d2, valid, lam, lo, hi, box, xp, wheel_rows, poly)
+        info = info._replace(feasible=info.feasible & ~xp.any(out, axis=0))
     u = xp.where(out[:n, None], 0, u)
-    info = CertificateInfo(info.max_violation.reshape(batch), (info.feasible & ~xp.any(out, axis=0)).reshape(batch),
-                           info.active.reshape(batch),
-                           stopped=None if info.stopped is None else info.stopped.reshape(batch))
-    unbatch = lambda v: from_minor(v, batch, xp)  # noqa: E731
-    lower, upper = (unbatch(v) for v in box) if boxed else (None, None)
-    wheel_lower, wheel_upper = (unbatch(v) for v in wheels) if wheeled else (None, None)
-    multipliers = Multipliers(unbatch(lam), lower, upper, wheel_lower, wheel_upper,
-                              unbatch(poly) if polygon else None)
-    return unbatch(u), info._replace(multipliers=multipliers)
+    lower, upper = box if boxed else (None, None)
+    wheel_lower, wheel_upper = wheels if wheeled else (None, None)
+    return u, Multipliers(lam, lower, upper, wheel_lower, wheel_upper, poly), info
 
 
 def _diagnostics(barrier, u, e, b, d2, valid, lam, lo, hi, box, xp, wheel_rows=None, poly=None):
@@ -788,4 +833,4 @@ def _diagnostics(barrier, u, e, b, d2, valid, lam, lo, hi, box, xp, wheel_rows=N
 
 __all__ = ["make_barrier", "Barrier", "CertificateInfo", "Multipliers", "KINDS", "SI_KINDS", "UNI_KINDS", "DD_KINDS",
            "V2_KINDS", "V2_TOLERANCE",
-           "round_robin", "default_iterations", "default_relaxation", "solve_si"]
+           "round_robin", "default_iterations", "default_relaxation", "solve_si", "solve_si_minor"]

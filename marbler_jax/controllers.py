@@ -63,8 +63,12 @@ def si_to_uni_dynamics(dxi, poses, linear_velocity_gain: float = 1.0,
     return xp.stack([v, w], axis=-1)
 
 
+SI_VELOCITY_LIMIT = 0.15
+"""rps's SI position controller's norm cap [m/s] (``velocity_magnitude_limit``), MARBLER's setting."""
+
+
 def si_position_controller(xi, goals, x_velocity_gain: float = 1.0, y_velocity_gain: float = 1.0,
-                           velocity_magnitude_limit: float = 0.15):
+                           velocity_magnitude_limit: float = SI_VELOCITY_LIMIT):
     """Proportional SI controller ``diag(kx, ky) (goal - xi)``, norms capped at the limit."""
     xp = namespace(xi, goals)
     gains = xp.asarray([x_velocity_gain, y_velocity_gain], dtype=xp.result_type(xi, goals))
@@ -135,3 +139,34 @@ def marbler_velocities_warm(poses, goals, barrier, multipliers, projection_dista
     xi = uni_to_si_states(poses, projection_distance)
     dxi, info = barrier.solve(si_position_controller(xi, goals), xi, warm_start=multipliers)
     return si_to_uni_mapping(dxi, poses, projection_distance), info.multipliers
+
+
+def marbler_velocities_minor(x, y, c, s, goal_x, goal_y, barrier=None, multipliers=None,
+                             projection_distance: float = 0.05):
+    """:func:`marbler_velocities` on batch-minor arrays, the heading given as its unit vector.
+
+    Args:
+        x, y, c, s: ``[N, B]`` positions [m] and ``(cos, sin)`` of the headings.
+        goal_x, goal_y: ``[N, B]`` goals of the projection points [m].
+        barrier: an SI :class:`marbler_jax.cbf.Barrier` or ``None``.
+        multipliers: batch-minor warm start of the barrier (see
+            :meth:`marbler_jax.cbf.Barrier.solve_minor`) or ``None`` for a cold solve.
+
+    Returns:
+        ``(v [N, B], omega [N, B], multipliers)`` (omega clipped to +-pi; ``multipliers`` is ``None``
+        without a barrier).
+    """
+    xp = namespace(x, goal_x)
+    d = projection_distance
+    px, py = x + d * c, y + d * s
+    dx, dy = goal_x - px, goal_y - py               # si_position_controller: unit gains, norm capped
+    norm = xp.sqrt(dx * dx + dy * dy)
+    scale = xp.where(norm > SI_VELOCITY_LIMIT, SI_VELOCITY_LIMIT / xp.where(norm > SI_VELOCITY_LIMIT, norm, 1), 1)
+    dx, dy = dx * scale, dy * scale
+    if barrier is not None:
+        u, multipliers = barrier.solve_minor(xp.stack([dx, dy], axis=1), xp.stack([px, py], axis=1), multipliers)
+        dx, dy = u[:, 0], u[:, 1]
+    v = c * dx + s * dy
+    w = xp.clip((-s * dx + c * dy) / d, -math.pi, math.pi)
+    return v, w, multipliers
+

@@ -35,8 +35,9 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from marbler_jax import physics
-from marbler_jax.xp import vmap_in_place
+from marbler_jax import controllers, physics
+from marbler_jax.cbf import Multipliers
+from marbler_jax.xp import from_minor, to_minor, vmap_in_place
 from marbler_jax.control_loop import barrier_for, control, control_warm, finish_step
 from marbler_jax.scenarios.base import Scenario, ScenarioConfig
 
@@ -233,43 +234,68 @@ class MarblerEnv:
         Returns ``(poses, collided, out_of_bounds, dist_travelled [N], multipliers)``. With
         ``penalize_violations`` the motion stops after the first violating tick. ``multipliers``
         warm-start the barrier at each refresh and come back updated (``None`` stays ``None``).
+        Batched over any leading axes of ``poses [..., N, 3]`` and ``goals [..., N, 2]``, also under
+        ``jax.vmap``: the loop runs on batch-minor arrays (see :meth:`_ticks`).
         """
-        total, period = self.config.update_frequency, self.config.control_period
-        full, rest = divmod(total, period)
-        carry = (poses, jnp.bool_(False), jnp.bool_(False), jnp.bool_(False), jnp.zeros(poses.shape[0], poses.dtype),
-                 multipliers)
         if velocities is not None:
             velocities = jnp.asarray(velocities, poses.dtype)
-            if velocities.shape != (self.num_segments, self.num_agents, 2):
-                raise ValueError(f"velocities must have shape {(self.num_segments, self.num_agents, 2)}, "
-                                 f"got {tuple(velocities.shape)}")
+            expected = tuple(poses.shape[:-2]) + (self.num_segments, self.num_agents, 2)
+            if velocities.shape != expected:
+                raise ValueError(f"velocities must have shape {expected}, got {tuple(velocities.shape)}")
+        return self._tick_loop(poses, goals, velocities, multipliers)
+
+    @functools.cached_property
+    def _tick_loop(self):
+        return vmap_in_place(self._ticks)
+
+    def _ticks(self, poses, goals, velocities, multipliers):
+        """:meth:`run_ticks` on leading batch axes ``[*batch]``, folded into the minor axis ``B``.
+
+        Every per-tick op (controller, barrier sweeps, integration, checks) is then a unit-stride vector
+        op over the whole batch, and the heading is carried as its unit vector ``(cos, sin)``, advanced by
+        a rotation each tick: the only trig per refresh is ``cos``/``sin`` of the turn ``dt * omega``.
+        """
+        batch = poses.shape[:-2]
+        nb = len(batch)
+        fold = lambda a: None if a is None else to_minor(a, nb, jnp)   # noqa: E731
+        unfold = lambda a: None if a is None else from_minor(a, batch, jnp)   # noqa: E731
+        x, y, theta = (fold(poses[..., k]) for k in range(3))
+        goal_x, goal_y = fold(goals[..., 0]), fold(goals[..., 1])
+        commands = fold(velocities)                                           # [S, N, 2, B] or None
+        warm = None if multipliers is None else Multipliers(*(fold(v) for v in multipliers))
+        total, period = self.config.update_frequency, self.config.control_period
+        stop = self.config.penalize_violations
+        full, rest = divmod(total, period)
+        flag = jnp.zeros(x.shape[1:], bool)
+        carry = (x, y, jnp.cos(theta), jnp.sin(theta), flag, flag, flag, jnp.zeros_like(x), warm)
 
         def segment(carry, length, index):
-            pose, stopped, hit_any, out_any, dist, multipliers = carry
-            if velocities is not None:
-                vel = velocities[index]
-            elif multipliers is None:
-                vel = self.velocities(pose, goals)
-            else:   # the multipliers keep their dtype (a float32 state stays float32 under x64)
-                vel, updated = self.velocities(pose, goals, multipliers)
-                multipliers = jax.tree_util.tree_map(lambda new, old: new.astype(old.dtype), updated, multipliers)
-            new_pose, hit, out, moved = physics.held_ticks(
-                self.params, pose, vel, length, stop_on_violation=self.config.penalize_violations)
+            x, y, c, s, stopped, hit_any, out_any, dist, warm = carry
+            if commands is not None:
+                v, w = commands[index, :, 0], commands[index, :, 1]
+            else:
+                v, w, updated = controllers.marbler_velocities_minor(x, y, c, s, goal_x, goal_y, self.barrier, warm)
+                if warm is not None:   # the multipliers keep their dtype (a float32 state stays float32 under x64)
+                    warm = jax.tree_util.tree_map(lambda new, old: new.astype(old.dtype), updated, warm)
+            v, w = physics.threshold_vw(self.params, v, w, jnp)
+            nx, ny, nc, ns, hit, out, moved = physics.held_ticks_minor(self.params, x, y, c, s, v, w, length, stop)
             live = ~stopped
-            pose = jnp.where(live, new_pose, pose)
+            x, y, c, s = (jnp.where(live, new, old) for new, old in ((nx, x), (ny, y), (nc, c), (ns, s)))
             dist = dist + jnp.where(live, moved, 0)
             hit_any = hit_any | (live & hit)
             out_any = out_any | (live & out)
-            if self.config.penalize_violations:
+            if stop:
                 stopped = stopped | hit | out
-            return (pose, stopped, hit_any, out_any, dist, multipliers), None
+            return (x, y, c, s, stopped, hit_any, out_any, dist, warm), None
 
         if full:
             carry, _ = jax.lax.scan(lambda c, i: segment(c, period, i), carry, jnp.arange(full))
         if rest:
             carry, _ = segment(carry, rest, full)
-        pose, _, hit_any, out_any, dist, multipliers = carry
-        return pose, hit_any, out_any, dist, multipliers
+        x, y, c, s, _, hit_any, out_any, dist, warm = carry
+        new_poses = unfold(jnp.stack([x, y, jnp.arctan2(s, c)], axis=1))
+        warm = None if warm is None else Multipliers(*(unfold(v) for v in warm))
+        return new_poses, unfold(hit_any), unfold(out_any), unfold(dist), warm
 
     def _check_actions(self, actions):
         """Shape/dtype errors always raise; out-of-range values raise when concrete (outside jit).

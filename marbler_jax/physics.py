@@ -138,13 +138,19 @@ def threshold(params: RobotariumParams, velocities):
     preserving, not a proportional scaling -- curvature is not kept), then map back.
     """
     xp = namespace(velocities)
+    v, w = threshold_vw(params, velocities[..., 0], velocities[..., 1], xp)
+    return xp.stack([v, w], axis=-1)
+
+
+def threshold_vw(params: RobotariumParams, v, w, xp):
+    """:func:`threshold` on separate arrays ``v`` [m/s] and ``w`` [rad/s] of any (equal) shape."""
     if params.threshold_mode == "components":
-        v = xp.clip(velocities[..., 0], -params.max_linear_velocity, params.max_linear_velocity)
-        w = xp.clip(velocities[..., 1], -params.max_angular_velocity, params.max_angular_velocity)
-        return xp.stack([v, w], axis=-1)
-    wheels = uni_to_diff(params, velocities)
-    wheels = xp.clip(wheels, -params.max_wheel_velocity, params.max_wheel_velocity)
-    return diff_to_uni(params, wheels)
+        return (xp.clip(v, -params.max_linear_velocity, params.max_linear_velocity),
+                xp.clip(w, -params.max_angular_velocity, params.max_angular_velocity))
+    r, length, limit = params.wheel_radius, params.base_length, params.max_wheel_velocity
+    left = xp.clip((2 * v - length * w) / (2 * r), -limit, limit)
+    right = xp.clip((2 * v + length * w) / (2 * r), -limit, limit)
+    return r / 2 * (left + right), r / length * (right - left)
 
 
 def actuator_safe(velocities):
@@ -278,12 +284,31 @@ def _held_ticks(params: RobotariumParams, ticks: int, stop_on_violation: bool, p
     xp = namespace(poses, vel)
     batch = poses.shape[:-2]
     nb = len(batch)
-    n = poses.shape[-2]
+    x, y, theta = (to_minor(poses[..., k], nb, xp) for k in range(3))
+    v, w = (to_minor(vel[..., k], nb, xp) for k in range(2))
+    x, y, c, s, hit, out, dist = held_ticks_minor(params, x, y, xp.cos(theta), xp.sin(theta), v, w, ticks,
+                                                  stop_on_violation)
+    new_poses = from_minor(xp.stack([x, y, xp.arctan2(s, c)], axis=1), batch, xp)
+    return new_poses, from_minor(hit, batch, xp), from_minor(out, batch, xp), from_minor(dist, batch, xp)
+
+
+def held_ticks_minor(params: RobotariumParams, x, y, c, s, v, w, ticks: int, stop_on_violation: bool = True):
+    """The tick loop of :func:`held_ticks` on batch-minor arrays, the heading as its unit vector.
+
+    Args:
+        x, y, c, s: ``[N, B]`` positions [m] and ``(cos, sin)`` of the headings.
+        v, w: ``[N, B]`` thresholded command [m/s, rad/s], held for all ``ticks`` (static).
+
+    Returns:
+        ``(x, y, c, s, collided [B], out_of_bounds [B], distance [N, B])``; a pre-tick pose with a
+        coordinate outside the arena or not finite counts as out of bounds.
+    """
+    xp = namespace(x, y, c, s, v, w)
+    n = x.shape[0]
     x_min, x_max, y_min, y_max = params.arena
     off, diam2 = params.collision_offset, params.collision_diameter ** 2
-    x, y, theta = (to_minor(poses[..., k], nb, xp) for k in range(3))
-    step = params.dt * to_minor(vel[..., 0], nb, xp)
-    delta = params.dt * to_minor(vel[..., 1], nb, xp)
+    step = params.dt * v
+    delta = params.dt * w
     cos_d, sin_d = xp.cos(delta), xp.sin(delta)
     false = xp.zeros(x.shape[1:], dtype=bool)
 
@@ -312,7 +337,7 @@ def _held_ticks(params: RobotariumParams, ticks: int, stop_on_violation: bool, p
     def tick(_, carry):
         x, y, c, s, stopped, hit, out, dist = carry
         hit_now = collide(x + off * c, y + off * s)
-        out_now = xp.any((x < x_min) | (x > x_max) | (y < y_min) | (y > y_max), axis=0)
+        out_now = ~xp.all((x >= x_min) & (x <= x_max) & (y >= y_min) & (y <= y_max), axis=0)
         live = ~stopped
         hit = hit | (live & hit_now)
         out = out | (live & out_now)
@@ -324,10 +349,9 @@ def _held_ticks(params: RobotariumParams, ticks: int, stop_on_violation: bool, p
             stopped = stopped | hit_now | out_now
         return x, y, c, s, stopped, hit, out, dist
 
-    carry = (x, y, xp.cos(theta), xp.sin(theta), false, false, false, xp.zeros_like(x))
+    carry = (x, y, c, s, false, false, false, xp.zeros_like(x))
     x, y, c, s, _, hit, out, dist = fori_loop(xp, 0, int(ticks), tick, carry)
-    new_poses = from_minor(xp.stack([x, y, xp.arctan2(s, c)], axis=1), batch, xp)
-    return new_poses, from_minor(hit, batch, xp), from_minor(out, batch, xp), from_minor(dist, batch, xp)
+    return x, y, c, s, hit, out, dist
 
 
 def collision_centres(params: RobotariumParams, poses):
@@ -399,7 +423,7 @@ def max_angular_velocity(params: RobotariumParams) -> float:
 
 __all__ = [
     "actuator_safe", "RobotariumParams", "PRESETS", "DEFAULT_PRESET", "get_params", "uni_to_diff", "diff_to_uni",
-    "threshold", "wrap_angle", "integrate", "trajectory", "held_ticks", "collision_centres", "pair_distances", "collisions",
+    "threshold", "threshold_vw", "wrap_angle", "integrate", "trajectory", "held_ticks", "held_ticks_minor", "collision_centres", "pair_distances", "collisions",
     "collision_pairs", "out_of_bounds", "check_num_robots",
     "max_angular_velocity",
 ]

@@ -39,8 +39,9 @@ def namespace(*arrays: Any):
 
 
 def fori_loop(xp, lower: int, upper: int, body: Callable[[int, Any], Any], init: Any) -> Any:
-    """``lax.fori_loop`` under JAX, a Python ``for`` loop under numpy (static trip count)."""
-    if xp is np:
+    """``lax.fori_loop`` under JAX, a Python ``for`` loop under numpy (static trip count; a single
+    trip runs the body once, with ``i`` a Python int, outside any loop construct)."""
+    if xp is np or upper - lower == 1:
         val = init
         for i in range(lower, upper):
             val = body(i, val)

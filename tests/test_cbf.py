@@ -364,3 +364,27 @@ def test_a_non_finite_robot_is_taken_out_and_the_others_are_still_certified(kind
         assert not bool(info.feasible)
         jitted = np.asarray(jax.jit(barrier)(jnp.asarray(ub, jnp.float32), jnp.asarray(xb, jnp.float32)))
         assert np.all(np.isfinite(jitted)) and np.all(jitted[5] == 0)
+
+
+@pytest.mark.parametrize("kind", ["si2", "si_boundary", "si_v2", "si_boundary_v2"])
+def test_batch_minor_solve_matches_solve(kind):
+    """``solve_minor`` (the env's per-tick entry: batch-minor arrays, no diagnostics) returns what
+    ``solve`` does, cold and warm-started (the v2 kinds with their stop rule applied)."""
+    rng = np.random.default_rng(5)
+    barrier = cbf.make_barrier(kind, iterations=12)
+    x, u = _random_problem(rng, 6, 5)
+    x[0, 1] = x[0, 0] + 1e-3                     # two robots nearly on top of each other
+    u[0, 0], u[0, 1] = (0.3, 0.0), (-0.3, 0.0)    # and driven into each other
+    minor = lambda a: np.moveaxis(a, 0, -1)       # [B, ...] -> [..., B]  # noqa: E731
+    with jax.enable_x64(True):
+        expected, info = barrier.solve(jnp.asarray(u), jnp.asarray(x))
+        got, multipliers = barrier.solve_minor(jnp.asarray(minor(u)), jnp.asarray(minor(x)))
+        np.testing.assert_allclose(np.moveaxis(np.asarray(got), -1, 0), expected, atol=1e-12)
+        for want, have in zip(info.multipliers, multipliers):
+            if want is not None:
+                np.testing.assert_allclose(np.moveaxis(np.asarray(have), -1, 0), want, atol=1e-12)
+        warm_expected, _ = barrier.solve(jnp.asarray(u), jnp.asarray(x), warm_start=info.multipliers)
+        warm_got, _ = barrier.solve_minor(jnp.asarray(minor(u)), jnp.asarray(minor(x)), multipliers)
+        np.testing.assert_allclose(np.moveaxis(np.asarray(warm_got), -1, 0), warm_expected, atol=1e-12)
+    with pytest.raises(ValueError, match="solve_minor takes the SI kinds"):
+        cbf.make_barrier("uni2").solve_minor(jnp.zeros((4, 2, 1)), jnp.zeros((4, 2, 1)))
