@@ -16,14 +16,17 @@ Markdown table.
     python scripts/bench_train.py --algos vdn --presets recipe --learner-devices 2 --hp cell=mingru   # preset + overrides
     python scripts/bench_train.py --algos qmix_ns --presets recipe --learner-devices 2 --repeats 6 \
         --variants last_action=true last_action=false        # an A/B of one setting, timed alternately
+    python scripts/bench_train.py --algos vdn mappo --presets recipe --variants control_period=15 control_period=1
 
 ``--hp key=value`` (repeatable, as in ``marbler-jax train``) overrides a preset's hyperparameters for
-every algorithm that has the setting. ``--variants`` adds one row per variant, each a comma-separated list
+every algorithm that has the setting, and the env's config where the key is one of its fields (e.g.
+``control_period=1``: the robots' loop). ``--variants`` adds one row per variant, each a comma-separated list
 of ``key=value`` overrides applied on top of ``--hp`` (``""`` for none).
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -46,6 +49,8 @@ def prepare(scenario: str, algo: str, preset_name: str, updates: int, seeds: int
     """Builds and compiles one configuration's chunk of ``updates`` updates: its row (without timings)
     and ``run() -> None``, which runs the chunk once from the same runner state and waits for it."""
     env_overrides, hp, _ = settings(preset_name, scenario, algo)
+    env_fields = {f.name for f in dataclasses.fields(marbler_jax.make(scenario).config)}
+    env_overrides.update({key: value for key, value in (overrides or {}).items() if key in env_fields})
     hp.update({key: value for key, value in (overrides or {}).items() if has_setting(algo, key)})
     if has_setting(algo, "learning_starts"):
         hp["learning_starts"] = 0
@@ -109,9 +114,10 @@ def main() -> None:
         parser.error(f"--repeats must be at least 1, got {args.repeats}")
     overrides = parse_overrides(args.hp)
     variants = {text: parse_variant(text) for text in args.variants}
+    env_fields = {f.name for f in dataclasses.fields(marbler_jax.make(args.scenario).config)}
     for key in set(overrides).union(*variants.values()):
-        if not any(has_setting(algo, key) for algo in args.algos):
-            parser.error(f"--hp/--variants {key}: not a setting of {args.algos}")
+        if key not in env_fields and not any(has_setting(algo, key) for algo in args.algos):
+            parser.error(f"--hp/--variants {key}: not a setting of {args.algos} or of the {args.scenario} env")
     use_cpu_devices(max(args.learner_devices))
     combos = [(a, p, k, d, v) for a in args.algos for p in args.presets for k in args.seeds
               for d in args.learner_devices for v in args.variants if d == 1 or has_setting(a, "learner_devices")]

@@ -103,6 +103,21 @@ def test_violation_ends_episode_with_penalty():
     assert int(info["steps"]) == 1
 
 
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_a_non_finite_pose_is_a_violation_and_the_others_still_move_safely(bad):
+    """A robot whose position is not finite is out of bounds at the step's first tick: the episode
+    ends with the violation reward, and the barrier certified the other robots without it."""
+    env = marbler_jax.make("predator_capture_prey", control_period=1)
+    _, state = env.reset(jax.random.PRNGKey(0))
+    state = state.replace(poses=state.poses.at[2, 0].set(bad))
+    _, _, rewards, done, info = jax.jit(env.step_env)(jax.random.PRNGKey(1), state, jnp.zeros(env.num_agents, jnp.int32))
+    assert bool(done) and bool(info["out_of_bounds"]) and bool(info["violation"])
+    np.testing.assert_allclose(rewards, env.scenario.violation_reward)
+    goals = env.scenario.goals(state.poses, state.scenario, jnp.zeros(env.num_agents, jnp.int32))
+    velocities = env.velocities(state.poses, goals)
+    assert np.all(np.isfinite(velocities)) and not np.any(velocities[2])
+
+
 def test_capture_reward_and_termination_pcp():
     env = marbler_jax.make("predator_capture_prey", num_prey=1, barrier_certificate="none")
     obs, state = env.reset(jax.random.PRNGKey(0))

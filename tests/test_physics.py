@@ -221,3 +221,16 @@ def test_actuator_safe_commands_pass_every_rps_actuator_check():
     # a command within the limits is sent unchanged
     calm = np.array([[0.1, 1.0], [-0.05, -2.0]])
     np.testing.assert_allclose(physics.actuator_safe(calm), calm, atol=1e-12)
+
+
+@pytest.mark.parametrize("ticks", [1, 5])
+def test_held_ticks_counts_a_non_finite_position_as_out_of_bounds(ticks):
+    """A NaN coordinate compares False with every bound; the tick loop still flags it (as
+    ``out_of_bounds`` does), so an env step with a broken pose ends as a violation."""
+    poses = jnp.asarray([[0.0, 0.0, 0.0], [0.5, jnp.nan, 0.0], [-0.5, 0.0, 0.0]])
+    vel = jnp.zeros((3, 2))
+    _, collided, outside, _ = physics.held_ticks(physics.get_params(), poses[None], vel[None], ticks)
+    assert bool(outside[0]) and not bool(collided[0])
+    assert bool(physics.out_of_bounds(physics.get_params(), poses)[1])
+    _, _, inside, _ = physics.held_ticks(physics.get_params(), poses[None].at[0, 1, 1].set(0.0), vel[None], ticks)
+    assert not bool(inside[0])
