@@ -176,7 +176,6 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     out = Path(out).absolute()
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} is a file; give a folder for the run")
-    out.mkdir(parents=True, exist_ok=True)
     config = dict(scenario=scenario, algo=algo, seeds=seeds, seed=seed, env=dataclasses.asdict(env.config),
                   algorithm=dataclasses.asdict(cfg), test_episodes=test_episodes)
     config_json = json.dumps(config, indent=2)
@@ -195,6 +194,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
             raise ValueError(f"--resume: the settings differ from the saved run in {diff}; use the same arguments")
     elif checkpoints.exists() and any(checkpoints.iterdir()):
         raise ValueError(f"{out} already holds checkpoints; pass --resume to continue or choose a new --out")
+    out.mkdir(parents=True, exist_ok=True)      # only once every setting is valid: a refused run leaves nothing
     atomic_write(out / "config.json", config_json)
 
     trainer = make_train(env, cfg)

@@ -38,6 +38,10 @@ def test_cli_rejects_bad_input_with_exit_2_and_creates_nothing(tmp_path, capsys)
     notes.write_text("mine")
     assert main(["train", "--algo", "ippo", "--out", str(notes), "--no-progress"]) == 2
     assert "is a file" in capsys.readouterr().err and notes.read_text() == "mine"
+    missing = tmp_path / "runs" / "never-trained"
+    assert main(["train", "--algo", "ippo", "--resume", "--out", str(missing), "--no-progress"]) == 2
+    assert "nothing to resume" in capsys.readouterr().err
+    assert not (tmp_path / "runs").exists()
 
 
 def test_driver_checks_checkpoint_every(tmp_path):
