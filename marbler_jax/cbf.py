@@ -340,9 +340,9 @@ class Barrier:
         multipliers)`` without diagnostics except where the result needs them (the v2 kinds' stop rule).
 
         What a batch-minor control loop calls every refresh: no layout change, no unused work.
-        Every team is solved: skipping the teams whose nominal input already satisfies every row (and
-        gathering the others into a smaller slice) was measured slower on the CPU backend, since the
-        check alone costs about what the warm-started sweeps it would save do.
+        Every team is solved, also those whose nominal input already satisfies every row: on the CPU
+        backend that check costs about what the few warm-started sweeps it would save do, and gathering
+        the other teams along the minor axis costs more.
         """
         if self.is_unicycle:
             raise ValueError(f"solve_minor takes the SI kinds {SI_KINDS}, not {self.kind!r}")
@@ -641,8 +641,7 @@ def solve_si_minor(barrier: Barrier, u_nom, points, warm_start: Multipliers | No
         u0 = u_nom
     else:
         norm = xp.sqrt(u_nom[:, 0] * u_nom[:, 0] + u_nom[:, 1] * u_nom[:, 1])[:, None]
-        limit = barrier.magnitude_limit
-        u0 = u_nom * xp.where(norm > limit, limit / xp.where(norm > limit, norm, 1), 1)
+        u0 = u_nom * controllers.cap_scale(norm, barrier.magnitude_limit, xp)
     rounds, half = round_robin(n)[0].shape
     m = n + n % 2
     dtype = u0.dtype

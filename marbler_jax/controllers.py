@@ -33,11 +33,15 @@ def si_to_uni_mapping(dxi, poses, projection_distance: float = 0.05,
     """
     xp = namespace(dxi, poses)
     c, s = _unit(poses[..., 2], xp)
-    dx, dy = dxi[..., 0], dxi[..., 1]
+    v, w = _si_to_uni(dxi[..., 0], dxi[..., 1], c, s, projection_distance, angular_velocity_limit, xp)
+    return xp.stack([v, w], axis=-1)
+
+
+def _si_to_uni(dx, dy, c, s, projection_distance, angular_velocity_limit, xp):
+    """:func:`si_to_uni_mapping` on components: ``(v, omega)`` for headings ``(c, s) = (cos, sin)``."""
     v = c * dx + s * dy
     w = (-s * dx + c * dy) / projection_distance
-    w = xp.clip(w, -angular_velocity_limit, angular_velocity_limit)
-    return xp.stack([v, w], axis=-1)
+    return v, xp.clip(w, -angular_velocity_limit, angular_velocity_limit)
 
 
 def uni_to_si_dynamics(dxu, poses, projection_distance: float = 0.05):
@@ -79,9 +83,12 @@ def si_position_controller(xi, goals, x_velocity_gain: float = 1.0, y_velocity_g
 def cap_norm(vectors, limit: float):
     """Rescale rows of ``vectors [..., 2]`` whose norm exceeds ``limit`` to norm ``limit``."""
     xp = namespace(vectors)
-    norm = xp.sqrt(xp.sum(vectors * vectors, axis=-1, keepdims=True))
-    scale = xp.where(norm > limit, limit / xp.where(norm > limit, norm, 1), 1)
-    return vectors * scale
+    return vectors * cap_scale(xp.sqrt(xp.sum(vectors * vectors, axis=-1, keepdims=True)), limit, xp)
+
+
+def cap_scale(norm, limit: float, xp):
+    """The factor :func:`cap_norm` applies to a vector of norm ``norm``: ``min(1, limit / norm)``."""
+    return xp.where(norm > limit, limit / xp.where(norm > limit, norm, 1), 1)
 
 
 def clf_unicycle_position_controller(poses, goals, linear_velocity_gain: float = 0.8,
@@ -160,13 +167,11 @@ def marbler_velocities_minor(x, y, c, s, goal_x, goal_y, barrier=None, multiplie
     d = projection_distance
     px, py = x + d * c, y + d * s
     dx, dy = goal_x - px, goal_y - py               # si_position_controller: unit gains, norm capped
-    norm = xp.sqrt(dx * dx + dy * dy)
-    scale = xp.where(norm > SI_VELOCITY_LIMIT, SI_VELOCITY_LIMIT / xp.where(norm > SI_VELOCITY_LIMIT, norm, 1), 1)
+    scale = cap_scale(xp.sqrt(dx * dx + dy * dy), SI_VELOCITY_LIMIT, xp)
     dx, dy = dx * scale, dy * scale
     if barrier is not None:
         u, multipliers = barrier.solve_minor(xp.stack([dx, dy], axis=1), xp.stack([px, py], axis=1), multipliers)
         dx, dy = u[:, 0], u[:, 1]
-    v = c * dx + s * dy
-    w = xp.clip((-s * dx + c * dy) / d, -math.pi, math.pi)
+    v, w = _si_to_uni(dx, dy, c, s, d, math.pi, xp)
     return v, w, multipliers
 

@@ -115,19 +115,25 @@ def get_params(preset: str | RobotariumParams = DEFAULT_PRESET) -> RobotariumPar
 def uni_to_diff(params: RobotariumParams, velocities):
     """Unicycle (v, omega) ``[..., N, 2]`` -> wheel speeds (left, right) ``[..., N, 2]`` [rad/s]."""
     xp = namespace(velocities)
-    v, w = velocities[..., 0], velocities[..., 1]
-    r, length = params.wheel_radius, params.base_length
-    left = (2 * v - length * w) / (2 * r)
-    right = (2 * v + length * w) / (2 * r)
-    return xp.stack([left, right], axis=-1)
+    return xp.stack(_wheel_speeds(params, velocities[..., 0], velocities[..., 1]), axis=-1)
 
 
 def diff_to_uni(params: RobotariumParams, wheels):
     """Wheel speeds (left, right) ``[..., N, 2]`` -> unicycle (v, omega) ``[..., N, 2]``."""
     xp = namespace(wheels)
-    left, right = wheels[..., 0], wheels[..., 1]
+    return xp.stack(_unicycle(params, wheels[..., 0], wheels[..., 1]), axis=-1)
+
+
+def _wheel_speeds(params: RobotariumParams, v, w):
+    """``(left, right)`` wheel speeds [rad/s] of (v, omega), any equal shapes."""
     r, length = params.wheel_radius, params.base_length
-    return xp.stack([r / 2 * (left + right), r / length * (right - left)], axis=-1)
+    return (2 * v - length * w) / (2 * r), (2 * v + length * w) / (2 * r)
+
+
+def _unicycle(params: RobotariumParams, left, right):
+    """``(v, omega)`` of wheel speeds ``left``, ``right`` [rad/s], any equal shapes."""
+    r, length = params.wheel_radius, params.base_length
+    return r / 2 * (left + right), r / length * (right - left)
 
 
 def threshold(params: RobotariumParams, velocities):
@@ -147,10 +153,9 @@ def threshold_vw(params: RobotariumParams, v, w, xp):
     if params.threshold_mode == "components":
         return (xp.clip(v, -params.max_linear_velocity, params.max_linear_velocity),
                 xp.clip(w, -params.max_angular_velocity, params.max_angular_velocity))
-    r, length, limit = params.wheel_radius, params.base_length, params.max_wheel_velocity
-    left = xp.clip((2 * v - length * w) / (2 * r), -limit, limit)
-    right = xp.clip((2 * v + length * w) / (2 * r), -limit, limit)
-    return r / 2 * (left + right), r / length * (right - left)
+    limit = params.max_wheel_velocity
+    left, right = (xp.clip(wheel, -limit, limit) for wheel in _wheel_speeds(params, v, w))
+    return _unicycle(params, left, right)
 
 
 def actuator_safe(velocities):

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import os
 import platform
@@ -44,13 +45,18 @@ from marbler_jax_rl.recipes import settings
 from marbler_jax_rl.cli import parse_overrides
 
 
+@functools.lru_cache(maxsize=None)
+def env_settings(scenario: str) -> frozenset:
+    """Names of the ``scenario`` env's config fields (what ``--hp``/``--variants`` may set on the env)."""
+    return frozenset(f.name for f in dataclasses.fields(marbler_jax.make(scenario).config))
+
+
 def prepare(scenario: str, algo: str, preset_name: str, updates: int, seeds: int = 1,
             learner_devices: int = 1, overrides: dict | None = None) -> dict:
     """Builds and compiles one configuration's chunk of ``updates`` updates: its row (without timings)
     and ``run() -> None``, which runs the chunk once from the same runner state and waits for it."""
     env_overrides, hp, _ = settings(preset_name, scenario, algo)
-    env_fields = {f.name for f in dataclasses.fields(marbler_jax.make(scenario).config)}
-    env_overrides.update({key: value for key, value in (overrides or {}).items() if key in env_fields})
+    env_overrides.update({key: value for key, value in (overrides or {}).items() if key in env_settings(scenario)})
     hp.update({key: value for key, value in (overrides or {}).items() if has_setting(algo, key)})
     if has_setting(algo, "learning_starts"):
         hp["learning_starts"] = 0
@@ -114,9 +120,8 @@ def main() -> None:
         parser.error(f"--repeats must be at least 1, got {args.repeats}")
     overrides = parse_overrides(args.hp)
     variants = {text: parse_variant(text) for text in args.variants}
-    env_fields = {f.name for f in dataclasses.fields(marbler_jax.make(args.scenario).config)}
     for key in set(overrides).union(*variants.values()):
-        if key not in env_fields and not any(has_setting(algo, key) for algo in args.algos):
+        if key not in env_settings(args.scenario) and not any(has_setting(algo, key) for algo in args.algos):
             parser.error(f"--hp/--variants {key}: not a setting of {args.algos} or of the {args.scenario} env")
     use_cpu_devices(max(args.learner_devices))
     combos = [(a, p, k, d, v) for a in args.algos for p in args.presets for k in args.seeds
