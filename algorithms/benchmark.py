@@ -87,13 +87,13 @@ def training_seconds(metrics: list[dict], seeds: int) -> float:
 def cell_runs(run: Path, env, greedy_of_params, seeds: int, absolute_episodes: int, key) -> dict:
     """The marl-eval ``{"run_<k>": ...}`` entries of a trained cell's run folder ``run``: every seed's best
     checkpoint plays ``absolute_episodes`` fresh greedy episodes, all seeds in one program."""
-    from .evaluate import restore_params
+    from .run import Run
 
     tests = [json.loads(line) for line in (run / TESTS_FILE).read_text().splitlines() if line.strip()]
     lines = [line for line in (run / "metrics.jsonl").read_text().splitlines() if line.strip()]
     metrics = [json.loads(line) for line in lines]
     best_scores = seed_best_scores(lines, seeds, tested=True)
-    absolute = make_tester(env, greedy_of_params, absolute_episodes)(restore_params(run, "best"),
+    absolute = make_tester(env, greedy_of_params, absolute_episodes)(Run.open(run).params("best"),
                                                                       jax.random.split(key, seeds))
     absolute = jax.tree_util.tree_map(np.asarray, absolute)
     runs = {}

@@ -141,13 +141,29 @@ def _rollout(args) -> int:
 def _list(args) -> int:
     import dataclasses
     import importlib
+    import re
+    import textwrap
 
     import marbler_jax
     from .driver import ALGORITHM_SUMMARIES
+    from .recipes import recipe
     from marbler_jax.registry import scenario_class
+    from marbler_jax.scenarios.base import field_docs
+
+    def plain(text: str) -> str:       # reST markup -> terminal text
+        return re.sub(r"``([^`]+)``", r"\1", re.sub(r":\w+:`([^`]+)`", r"\1", text))
 
     def first_line(text: str | None) -> str:
-        return text.strip().splitlines()[0] if text else ""
+        return plain(text.strip().splitlines()[0]) if text else ""
+
+    def print_fields(config, indent=6, skip=()):
+        docs = field_docs(type(config))
+        for field in dataclasses.fields(config):
+            if field.name in skip:
+                continue
+            print(f"{' ' * indent}{field.name} = {getattr(config, field.name)!r}")
+            print(textwrap.fill(plain(docs.get(field.name, "")), width=110, initial_indent=" " * (indent + 4),
+                                subsequent_indent=" " * (indent + 4)))
 
     print("scenarios:")
     for name in marbler_jax.registered():
@@ -156,11 +172,15 @@ def _list(args) -> int:
               f"{env.max_steps} steps per episode -- "
               f"{first_line(importlib.import_module(scenario_class(name).__module__).__doc__)}")
         if args.verbose:
-            for field in dataclasses.fields(scenario_class(name).Config):
-                print(f"      {field.name} = {getattr(env.config, field.name)!r}")
-    print("algorithms (marbler-jax train --algo):")
+            print_fields(env.config)
+    print("algorithms (marbler-jax train --algo" + (", with the settings of each one's recipe):" if args.verbose else "):"))
     for algo, summary in ALGORITHM_SUMMARIES.items():
         print(f"  {algo}: {summary}")
+        if args.verbose:
+            chosen = recipe(algo)
+            budgets = ", ".join(f"{name} {steps:,}" for name, steps in chosen.steps.items())
+            print(f"      env steps per seed: {budgets}; elsewhere {chosen.default_steps:,}")
+            print_fields(chosen.config, skip=("total_timesteps",))
     return 0
 
 
@@ -358,7 +378,7 @@ def _quickstart(args) -> int:
     _episode_gif(out, gif)
     from .export import export_policy
 
-    export_policy(out, out / "policy", checkpoint="final", bundle=out / "robotarium")
+    export_policy(out, out / "policy", bundle=out / "robotarium")
     replace_folder(out, final)
     out = final
     better = result["trained"]["return"] > result["random"]["return"]
@@ -374,7 +394,7 @@ def _episode_gif(run: Path, gif: Path) -> None:
     """GIF of one greedy episode of the run's first seed."""
     import jax
 
-    from .driver import load_run
+    from .run import load_run
     from marbler_jax.render import episode_frames, save_movie
 
     env, policy = load_run(run)
@@ -391,7 +411,7 @@ def _render(args) -> int:
         raise ValueError(f"--envs must be >= 1, got {args.envs}")
     target = Path(args.target)
     if (target / "config.json").exists():
-        from .driver import load_run
+        from .run import load_run
 
         if args.set:
             raise ValueError("--set applies to a scenario name; a run renders with the settings it was trained with")
@@ -430,10 +450,18 @@ class _DefaultsFormatter(argparse.ArgumentDefaultsHelpFormatter):
         return super()._get_help_string(action)
 
 
+PROGRESS_LEGEND = ("progress bar: updates done / all, elapsed < ETA and updates/s measured after compilation "
+                   "(printed apart as 'compiled in'); ret: mean training return of the last update's episodes; "
+                   "test: mean greedy test return of the last checkpoint (--test-episodes); sps: env steps per "
+                   "second over all seeds in the last chunk")
+CHECKPOINT_HELP = "which parameters of the run: each seed's best greedy test (best) or the end of training (final)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .benchmark import PAPER_ALGOS, PAPER_SCENARIOS
     from .driver import ALGORITHMS
     from .recipes import RECIPE_NAMES
+    from .run import CHECKPOINTS, DEFAULT_CHECKPOINT
     from marbler_jax import cbf, physics
     from marbler_jax.control_loop import ROBOTS_CONTROL_PERIOD
 
@@ -460,9 +488,10 @@ def build_parser() -> argparse.ArgumentParser:
     roll.add_argument("--gif", default="", help="write a GIF of env 0 to this path")
     roll.set_defaults(func=_rollout)
     lst = sub.add_parser("list", help="scenarios, sizes and default config")
-    lst.add_argument("-v", "--verbose", action="store_true", help="print every config key")
+    lst.add_argument("-v", "--verbose", action="store_true", help="print every config key, its default and its meaning")
     lst.set_defaults(func=_list)
-    tr = sub.add_parser("train", help="train an algorithm on a scenario (writes a run folder)")
+    tr = sub.add_parser("train", help="train an algorithm on a scenario (writes a run folder)",
+                        epilog=PROGRESS_LEGEND)
     tr.add_argument("--scenario", default="simple_navigation")
     tr.add_argument("--algo", default="ippo", choices=sorted(ALGORITHMS))
     tr.add_argument("--preset", default="recipe", choices=list(RECIPE_NAMES),
@@ -493,7 +522,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev = sub.add_parser("evaluate", help="paper-style metrics (MARBLER Table II) of a run's best checkpoint")
     ev.add_argument("run", help="run folder written by `marbler-jax train`")
     ev.add_argument("--episodes", type=int, default=100, help="greedy episodes per seed")
-    ev.add_argument("--checkpoint", default="best", choices=["best", "final"])
+    ev.add_argument("--checkpoint", default=DEFAULT_CHECKPOINT, choices=CHECKPOINTS, help=CHECKPOINT_HELP)
     ev.add_argument("--seed", type=int, default=0)
     ev.add_argument("--best-seed", action="store_true",
                     help="only the seed with the highest greedy test return, as the paper's Table II reports the "
@@ -503,7 +532,7 @@ def build_parser() -> argparse.ArgumentParser:
     ex = sub.add_parser("export", help="write a run's policy as numpy .npy files (runs without JAX)")
     ex.add_argument("run", help="run folder written by `marbler-jax train`")
     ex.add_argument("--out", required=True, help="policy folder to write (flat, .npy files only)")
-    ex.add_argument("--checkpoint", default="best", choices=["best", "final"])
+    ex.add_argument("--checkpoint", default=DEFAULT_CHECKPOINT, choices=CHECKPOINTS, help=CHECKPOINT_HELP)
     ex.add_argument("--seed-index", type=int, default=0, help="which of the run's seeds to export")
     ex.add_argument("--bundle", default=None,
                     help="also write a flat Robotarium submission bundle (main.py + files) to this folder")
@@ -519,7 +548,7 @@ def build_parser() -> argparse.ArgumentParser:
     rd.add_argument("target", help="run folder (greedy policy) or scenario name (random actions)")
     rd.add_argument("--out", required=True, help="movie file: .gif, or .mp4 with imageio-ffmpeg installed")
     rd.add_argument("--envs", type=int, default=1, help="episodes side by side in a grid (vmapped envs)")
-    rd.add_argument("--checkpoint", default="final", choices=["best", "final"], help="run parameters to render")
+    rd.add_argument("--checkpoint", default=DEFAULT_CHECKPOINT, choices=CHECKPOINTS, help=CHECKPOINT_HELP)
     rd.add_argument("--seed-index", type=int, default=0, help="which of the run's seeds")
     rd.add_argument("--seed", type=int, default=0, help="episode randomness")
     rd.add_argument("--fps", type=float, default=6.0)
@@ -527,7 +556,7 @@ def build_parser() -> argparse.ArgumentParser:
     rd.add_argument("--no-progress", action="store_true")
     rd.set_defaults(func=_render)
     bm = sub.add_parser("benchmark", help="MARBLER's Table II grid: every cell's seeds trained with the recipes, "
-                        "tested during training, one marl-eval results file (resumable)")
+                        "tested during training, one marl-eval results file (resumable)", epilog=PROGRESS_LEGEND)
     bm.add_argument("--algos", nargs="+", default=list(PAPER_ALGOS), choices=sorted(ALGORITHMS))
     bm.add_argument("--scenarios", nargs="+", default=list(PAPER_SCENARIOS))
     bm.add_argument("--seeds", type=int, default=5, help="seeds per cell, trained in one vmapped program")

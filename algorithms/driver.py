@@ -27,7 +27,7 @@ import numpy as np
 
 import marbler_jax
 from marbler_jax.registry import canonical_name
-from . import ippo, mappo, qmix, vdn
+from . import checkpoints, ippo, mappo, qmix, vdn
 from .hang_guard import HangGuard, hang_message
 from marbler_jax.rollout import batched_rollout, episode_stats, first_episode_metrics, make_rollout
 
@@ -179,7 +179,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     config = dict(scenario=scenario, algo=algo, seeds=seeds, seed=seed, env=dataclasses.asdict(env.config),
                   algorithm=dataclasses.asdict(cfg), test_episodes=test_episodes)
     config_json = json.dumps(config, indent=2)
-    checkpoints = out / "checkpoints"
+    checkpoint_dir = out / "checkpoints"
     if resume:
         if not (out / "config.json").exists():
             raise ValueError(f"--resume: {out} has no config.json (nothing to resume)")
@@ -192,7 +192,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         if saved != json.loads(config_json):
             diff = sorted(k for k in config if saved.get(k) != config[k])
             raise ValueError(f"--resume: the settings differ from the saved run in {diff}; use the same arguments")
-    elif checkpoints.exists() and any(checkpoints.iterdir()):
+    elif checkpoint_dir.exists() and any(checkpoint_dir.iterdir()):
         raise ValueError(f"{out} already holds checkpoints; pass --resume to continue or choose a new --out")
     out.mkdir(parents=True, exist_ok=True)      # only once every setting is valid: a refused run leaves nothing
     atomic_write(out / "config.json", config_json)
@@ -201,22 +201,30 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     num_updates, steps_per_update = trainer.num_updates, trainer.steps_per_update
     runner = jax.jit(lambda keys: over_seeds(trainer.init, keys))(jax.random.split(jax.random.PRNGKey(seed), seeds))
     options = ocp.CheckpointManagerOptions(max_to_keep=keep, enable_async_checkpointing=False)
-    manager = ocp.CheckpointManager(checkpoints, options=options)
+    manager = ocp.CheckpointManager(checkpoint_dir, options=options)
     best_manager = ocp.CheckpointManager(out / "best", options=ocp.CheckpointManagerOptions(
         max_to_keep=1, enable_async_checkpointing=False))
     lines, test_lines, done = [], [], 0
-    if resume and manager.latest_step() is not None:
-        done = int(manager.latest_step())
+    step, restored = checkpoints.restore_latest(manager, runner, warn=log) if resume else (None, None)
+    if step is not None:
+        done = int(step)
         # as host arrays (orbax would commit them to one device) they go wherever the training program
         # runs, e.g. on every device of a data-parallel learner, like a fresh runner's
-        runner = jax.tree_util.tree_map(np.asarray, manager.restore(done, args=ocp.args.StandardRestore(runner)))
+        runner = jax.tree_util.tree_map(np.asarray, restored)
         lines = _lines_upto(out / "metrics.jsonl", done)
         test_lines = _lines_upto(out / TESTS_FILE, done)
         log(f"resuming from update {done} of {num_updates}")
     best_scores = seed_best_scores(lines, seeds, tested=bool(test_episodes))
     best_params = None
-    if resume and best_manager.latest_step() is not None:
-        best_params = jax.tree_util.tree_map(np.asarray, best_manager.restore(best_manager.latest_step()))
+    if resume:
+        try:
+            best_params = checkpoints.restore_latest(best_manager, warn=log)[1]
+        except ValueError:           # damaged and moved aside: every seed's best starts anew
+            log("warning: the best checkpoint starts anew from the next test")
+        if best_params is None:
+            best_scores = np.full(seeds, -np.inf)
+        else:
+            best_params = jax.tree_util.tree_map(np.asarray, best_params)
     tester = make_tester(env, lambda p: greedy(env, cfg, p), test_episodes, over_seeds) if test_episodes else None
     test_keys = jax.random.split(jax.random.PRNGKey(seed + 7919), seeds)   # apart from the training keys
     chunk = checkpoint_every or max(1, num_updates // 10)
@@ -230,12 +238,20 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     log(f"training {algo} on {scenario}: {num_updates} updates x {steps_per_update} env steps, "
         f"{seeds} seed(s) in one program, checkpoint every {chunk} updates")
     t_start = time.perf_counter()
-    board = tensorboard_writer(out)
+    # every program is compiled before the bar starts, so its rate, ETA and sps are the steady state's
+    sizes = sorted({min(chunk, num_updates - done), (num_updates - done) % chunk} - {0})
+    with guard():
+        for n in sizes:
+            run_fns[n] = jax.jit(lambda r, n=n: over_seeds(lambda s: trainer.run(s, n), r))
+            run_fns[n].lower(runner).compile()
+        if tester:
+            tester.lower(runner["params"], test_keys).compile()
+    if sizes:
+        log(f"compiled in {time.perf_counter() - t_start:.1f} s")
+    board = tensorboard_writer(out, lines)
     bar = tqdm(total=num_updates, initial=done, unit="update", disable=not progress, dynamic_ncols=True)
     while done < num_updates:
         n = min(chunk, num_updates - done)
-        if n not in run_fns:
-            run_fns[n] = jax.jit(lambda r, n=n: over_seeds(lambda s: trainer.run(s, n), r))
         t0 = time.perf_counter()
         with guard():
             runner, metrics = jax.block_until_ready(run_fns[n](runner))
@@ -265,12 +281,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         last[SEED_SCORE_KEY[bool(tester)]] = _json_floats(scores)
         lines[-1] = json.dumps(last)
         if board is not None:
-            for line in lines[-n:]:
-                row = json.loads(line)
-                for name, value in row.items():
-                    if name not in ("update", "env_steps") and isinstance(value, (int, float)):  # no lists
-                        board.add_scalar(f"train/{name}", value, row["env_steps"])
-            board.flush()
+            log_scalars(board, lines[-n:])
         done += n
         # saved as host arrays: no device layout in the checkpoint, so a run trained on several devices
         # (learner_devices) restores anywhere (evaluate, export, resume)
@@ -281,16 +292,14 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
             best_params = keep_improved(improved, host["params"], best_params)
             if done in best_manager.all_steps():              # written before a kill, now written again
                 best_manager.delete(done)
-            best_manager.save(done, args=ocp.args.StandardSave(best_params), force=True)
-            best_manager.wait_until_finished()
+            checkpoints.save(best_manager, done, best_params)
         atomic_write(out / "metrics.jsonl", "\n".join(lines) + "\n")
         if tester:
             test_lines.append(json.dumps(dict(update=done, env_steps=done * steps_per_update, episodes={
                 name: [_json_floats(np.round(np.asarray(row, float), 5)) for row in values] for name, values in episodes.items()})))
             atomic_write(out / TESTS_FILE, "\n".join(test_lines) + "\n")
         plot_learning_curve(out / "metrics.jsonl", out / "learning_curve.png", f"{algo} on {scenario}")
-        manager.save(done, args=ocp.args.StandardSave(host))  # last: the checkpoint commits the chunk
-        manager.wait_until_finished()
+        checkpoints.save(manager, done, host)    # last: the checkpoint (with its manifest) commits the chunk
         recent = [json.loads(line)["return_mean"] for line in lines[-n:]]
         recent = [r for r in recent if r is not None]
         bar.update(n)
@@ -384,10 +393,19 @@ def save_params(path: Path, params) -> None:
     tmp = Path(path).with_name(Path(path).stem + ".tmp.npz")
     np.savez(tmp, **flat)
     os.replace(tmp, path)
+    checkpoints.write_file_checksum(path)
 
 
 def load_params(path: Path) -> dict:
-    """Inverse of :func:`save_params`."""
+    """Inverse of :func:`save_params`; ``ValueError`` naming the file when it is damaged."""
+    checkpoints.check_file(path)
+    try:
+        return _unflatten_npz(path)
+    except Exception as err:   # zipfile, pickle and numpy errors of a damaged file
+        raise ValueError(f"cannot read {path}: {type(err).__name__}: {err}") from err
+
+
+def _unflatten_npz(path: Path) -> dict:
     params: dict = {}
     with np.load(path) as flat:
         for name in flat.files:
@@ -399,34 +417,33 @@ def load_params(path: Path) -> dict:
     return params
 
 
-def tensorboard_writer(out: Path):
+def tensorboard_writer(out: Path, lines: list[str] = ()):
     """A ``tensorboardX.SummaryWriter`` on ``out/tensorboard`` when tensorboardX is installed, else None
-    (``pip install "marbler-jax[tensorboard]"``; view with ``tensorboard --logdir runs``)."""
+    (``pip install "marbler-jax[tensorboard]"``; view with ``tensorboard --logdir runs``).
+
+    The event files are derived from ``metrics.jsonl``: earlier ones are replaced by one that holds
+    ``lines`` (a resumed run's metrics up to its checkpoint), so an interrupted run's updates after its
+    checkpoint are neither doubled nor missing."""
     try:
         from tensorboardX import SummaryWriter
     except ImportError:
         return None
-    return SummaryWriter(str(Path(out) / "tensorboard"))
+    folder = Path(out) / "tensorboard"
+    for old in folder.glob("events.out.tfevents.*"):
+        old.unlink()
+    board = SummaryWriter(str(folder))
+    log_scalars(board, lines)
+    return board
 
 
-def load_run(run: Path, seed_index: int = 0, checkpoint: str = "final"):
-    """``(env, greedy policy)`` of seed ``seed_index`` of a run folder (``checkpoint``: ``"final"``
-    parameters of a finished run or the ``"best"`` orbax checkpoint)."""
-    from .evaluate import restore_params
-
-    config = json.loads((Path(run) / "config.json").read_text())
-    env = marbler_jax.make(config["scenario"], **config["env"])
-    cfg_cls, _, greedy = ALGORITHMS[config["algo"]]
-    params = select_seed(restore_params(Path(run), checkpoint), seed_index)
-    return env, greedy(env, cfg_cls(**config["algorithm"]), params)
-
-
-def select_seed(params, seed_index: int):
-    """One seed's parameters (numpy leaves) from seed-major ``params``, with a clear range error."""
-    seeds = jax.tree_util.tree_leaves(params)[0].shape[0]
-    if not 0 <= seed_index < seeds:
-        raise ValueError(f"seed index {seed_index} out of range: the run has {seeds} seed(s)")
-    return jax.tree_util.tree_map(lambda x: np.asarray(x[seed_index]), params)
+def log_scalars(board, lines: list[str]) -> None:
+    """The numeric fields of ``metrics.jsonl`` lines as ``train/<field>`` scalars at their env step."""
+    for line in lines:
+        row = json.loads(line)
+        for name, value in row.items():
+            if name not in ("update", "env_steps") and isinstance(value, (int, float)):  # no lists
+                board.add_scalar(f"train/{name}", value, row["env_steps"])
+    board.flush()
 
 
 def _nan_stat(fn, x):
@@ -469,4 +486,4 @@ def plot_learning_curve(metrics_path: Path, png: Path, title: str) -> None:
 
 
 __all__ = ["train", "evaluate", "plot_learning_curve", "ALGORITHMS", "atomic_write", "save_params",
-           "load_params", "load_run", "select_seed"]
+           "load_params"]

@@ -15,16 +15,14 @@ best greedy test return was highest, from its best checkpoint (``best/`` keeps e
 """
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-import marbler_jax
 from marbler_jax.control_loop import ROBOTS_CONTROL_PERIOD
 from marbler_jax.rollout import first_episode_metrics, make_rollout
+from .driver import ALGORITHMS
+from .run import DEFAULT_CHECKPOINT, Run
 
 # MARBLER paper, Table II, simulated experiments: (mean, std) per scenario / algorithm / metric.
 PAPER = {
@@ -73,82 +71,31 @@ def summarize(values: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
     return {k: {"mean": float(np.mean(v)), "std": float(np.std(v))} for k, v in values.items()}
 
 
-def restore_params(run: Path, checkpoint: str = "best"):
-    """Seed-major parameters of a run: ``"best"`` (orbax ``best/``) or ``"final"`` (``params.npz``)."""
-    from .driver import load_params
-
-    run = Path(run)
-    if checkpoint == "final":
-        if not (run / "params.npz").exists():
-            raise ValueError(f"{run} has no params.npz (the run has not finished); try checkpoint='best'")
-        return load_params(run / "params.npz")
-    if checkpoint != "best":
-        raise ValueError(f"checkpoint must be 'best' or 'final', got {checkpoint!r}")
-    import orbax.checkpoint as ocp
-
-    best = run / "best"
-    manager = ocp.CheckpointManager(best.absolute()) if best.exists() else None
-    if manager is None or manager.latest_step() is None:
-        raise ValueError(f"{run} has no best checkpoint in {best}; train first or use checkpoint='final'")
-    try:
-        return manager.restore(manager.latest_step(), args=ocp.args.StandardRestore())
-    except Exception as err:   # orbax raises several types for damaged folders
-        raise ValueError(f"cannot restore the best checkpoint in {best}: {err}") from err
-
-
-def best_seed(run) -> tuple[int, float]:
-    """``(index, score)`` of the run's seed with the highest best greedy test return (best training
-    return for runs trained with ``test_episodes=0``), read from ``metrics.jsonl``: the model MARBLER's
-    Table II reports ("we took the model that achieved the highest reward for each algorithm", of five
-    seeds, and ran it for 100 episodes)."""
-    from .driver import SEED_SCORE_KEY, seed_best_scores
-
-    run = Path(run)
-    config = json.loads((run / "config.json").read_text())
-    metrics = run / "metrics.jsonl"
-    lines = [line for line in metrics.read_text().splitlines() if line.strip()] if metrics.exists() else []
-    tested = bool(config.get("test_episodes", 0))
-    per_seed_key = SEED_SCORE_KEY[tested]
-    if config["seeds"] > 1 and not any(per_seed_key in json.loads(line) for line in lines):
-        raise ValueError(f"{run} logs no per-seed scores ({per_seed_key!r} in metrics.jsonl; runs from earlier "
-                         "versions lack them); evaluate all seeds instead")
-    scores = seed_best_scores(lines, config["seeds"], tested)
-    if not np.isfinite(scores).any():
-        raise ValueError(f"{run} has no scored chunk yet (metrics.jsonl); train first")
-    index = int(np.argmax(scores))                        # unscored seeds are -inf
-    return index, float(scores[index])
-
-
-def evaluate_run(run, episodes: int = 100, checkpoint: str = "best", seed: int = 0, progress: bool = False,
+def evaluate_run(run, episodes: int = 100, checkpoint: str = DEFAULT_CHECKPOINT, seed: int = 0, progress: bool = False,
                  seed_selection: str = "all") -> dict:
     """Table II metrics of every seed of run folder ``run`` and pooled over seeds, or with
-    ``seed_selection="best"`` of the one seed :func:`best_seed` picks (the paper's protocol).
+    ``seed_selection="best"`` of the one seed :meth:`Run.best_seed` picks (the paper's protocol).
 
     The policy is evaluated in the loop it trained in (``pooled``, ``per_seed``) and, when that loop's
     ``control_period`` is not 1, also in the robots' loop that a bundle deploys (``deployed``: the same
     env with controller and barrier every tick, the same start states): MARBLER's sim-vs-real
     comparison as training loop vs deployment loop, in simulation."""
-    from .driver import ALGORITHMS
-
     if seed_selection not in ("all", "best"):
         raise ValueError(f"seed_selection must be 'all' or 'best', got {seed_selection!r}")
 
-    run = Path(run)
-    if not (run / "config.json").exists():
-        raise ValueError(f"{run} is not a run folder (no config.json)")
+    opened = Run.open(run)
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
-    config = json.loads((run / "config.json").read_text())
-    env = marbler_jax.make(config["scenario"], **config["env"])
-    cfg_cls, _, greedy = ALGORITHMS[config["algo"]]
-    cfg = cfg_cls(**config["algorithm"])
-    params = restore_params(run, checkpoint)
+    config = opened.config
+    env = opened.env()
+    greedy = ALGORITHMS[opened.algo][2]
+    cfg = opened.algorithm_config()
+    params = opened.params(checkpoint)
     n_seeds = jax.tree_util.tree_leaves(params)[0].shape[0]
-    per_seed, pooled = [], {}
-    seeds = [best_seed(run)[0]] if seed_selection == "best" else list(range(n_seeds))
+    seeds = [opened.best_seed()[0]] if seed_selection == "best" else list(range(n_seeds))
     loops = {"trained": env}
     if env.config.control_period != ROBOTS_CONTROL_PERIOD:
-        loops["deployed"] = marbler_jax.make(config["scenario"], **dict(config["env"], control_period=ROBOTS_CONTROL_PERIOD))
+        loops["deployed"] = opened.env(control_period=ROBOTS_CONTROL_PERIOD)
     jobs = [(name, s) for name in loops for s in seeds]
     if progress:
         from tqdm.auto import tqdm
@@ -205,4 +152,4 @@ def markdown_table(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["evaluate_run", "best_seed", "markdown_table", "greedy_episodes", "first_episodes", "restore_params", "PAPER"]
+__all__ = ["evaluate_run", "markdown_table", "greedy_episodes", "first_episodes", "PAPER"]

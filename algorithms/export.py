@@ -15,11 +15,12 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from .driver import flatten_params, select_seed
+from .driver import flatten_params
+from .run import DEFAULT_CHECKPOINT, Run
 from .networks import QAgent
 from marbler_jax.control_loop import ROBOTS_CONTROL_PERIOD
 from marbler_jax.deploy.bundle import check_target, replace_folder, write_bundle
-from marbler_jax.numpy_policy import FORMAT, SPEC_FILE, NumpyPolicy
+from marbler_jax.numpy_policy import FORMAT, SPEC_FILE, NumpyPolicy, file_sha256
 
 
 def policy_tensors(algo: str, cfg, params) -> tuple[dict, dict]:
@@ -57,12 +58,13 @@ def export_params(algo: str, cfg, params, env, out, extra: dict | None = None, f
     tmp.mkdir(parents=True)
     for name, array in tensors.items():
         np.save(tmp / spec["tensors"][name], array, allow_pickle=False)
+    spec["sha256"] = {file: file_sha256(tmp / file) for file in spec["tensors"].values()}
     np.save(tmp / SPEC_FILE, np.array(json.dumps(spec, indent=1)), allow_pickle=False)
     replace_folder(tmp, out)
     return NumpyPolicy(spec, tensors)
 
 
-def export_policy(run, out, seed_index: int = 0, checkpoint: str = "best", bundle=None, episodes: int = 2,
+def export_policy(run, out, seed_index: int = 0, checkpoint: str = DEFAULT_CHECKPOINT, bundle=None, episodes: int = 2,
                   bundle_seed: int = 0, control_period: int | None = ROBOTS_CONTROL_PERIOD, force: bool = False) -> dict:
     """Export seed ``seed_index`` of run folder ``run`` to the policy folder ``out``; returns the spec.
 
@@ -73,32 +75,24 @@ def export_policy(run, out, seed_index: int = 0, checkpoint: str = "best", bundl
     (a command held for 15 iterations is what lets robots collide on the real testbed); ``None``
     deploys the training period as it is. ``out`` and ``bundle`` are replaced only when empty or
     earlier outputs of ``export`` (``force`` replaces any folder; a file never)."""
-    import marbler_jax
-    from .driver import ALGORITHMS
-    from .evaluate import restore_params
-
-    run = Path(run)
-    if not (run / "config.json").exists():
-        raise ValueError(f"{run} is not a run folder (no config.json)")
+    opened = Run.open(run)
     check_target(out, SPEC_FILE, "policy", force)
     if bundle is not None:
         from marbler_jax.deploy.main import CONFIG_FILE
 
         check_target(bundle, CONFIG_FILE, "bundle", force)
-    config = json.loads((run / "config.json").read_text())
+    config = opened.config
     if control_period is not None and (isinstance(control_period, bool) or not isinstance(control_period, int)
                                        or control_period < 1):
         raise ValueError(f"control_period must be an integer >= 1 (or None for the training period), "
                          f"got {control_period!r}")
-    env = marbler_jax.make(config["scenario"], **config["env"])
-    cfg = ALGORITHMS[config["algo"]][0](**config["algorithm"])
-    one = select_seed(restore_params(run, checkpoint), seed_index)
+    env = opened.env()
+    one = opened.seed_params(seed_index, checkpoint)
     extra = dict(env=config["env"], checkpoint=checkpoint, seed_index=seed_index)
-    spec = export_params(config["algo"], cfg, one, env, out, extra, force=force).spec
+    spec = export_params(opened.algo, opened.algorithm_config(), one, env, out, extra, force=force).spec
     if bundle is not None:
-        deployed = env if control_period is None else marbler_jax.make(
-            config["scenario"], **dict(config["env"], control_period=control_period))
-        write_bundle(deployed, out, bundle, config["algo"], episodes=episodes, seed=bundle_seed, force=force)
+        deployed = env if control_period is None else opened.env(control_period=control_period)
+        write_bundle(deployed, out, bundle, opened.algo, episodes=episodes, seed=bundle_seed, force=force)
     return spec
 
 

@@ -30,9 +30,34 @@ from .networks import ActorCritic, apply_agents, init_agents, with_agent_ids
 
 @dataclasses.dataclass(frozen=True)
 class IPPOConfig:
-    total_timesteps: int = 500_000   # env steps (one env step moves every agent)
+    """IPPO settings (MAPPO's too, with a centralised critic).
+
+    Attributes:
+        total_timesteps: env steps per seed (one env step moves every robot).
+        num_envs: parallel envs collecting each update's rollout.
+        num_steps: rollout length per env per update.
+        update_epochs: passes over each rollout.
+        num_minibatches: minibatches per pass.
+        gamma: discount factor.
+        gae_lambda: GAE lambda of the advantages.
+        clip_eps: PPO's clip range of the probability ratio (and of the value update).
+        ent_coef: weight of the entropy bonus.
+        vf_coef: weight of the value loss.
+        max_grad_norm: global gradient-norm clip.
+        lr: Adam learning rate.
+        anneal_lr: decay the learning rate linearly to 0 over the run.
+        hidden: units per hidden layer of actor and critic.
+        layers: hidden layers of actor and critic.
+        activation: hidden activation, "tanh" or "relu".
+        shared: one network for every robot (else one per robot).
+        agent_ids: append a one-hot robot ID to each robot's input.
+        critic_input: "local": the critic sees the robot's own observation (IPPO); "global": every
+            robot's observation (MAPPO).
+    """
+
+    total_timesteps: int = 500_000
     num_envs: int = 64
-    num_steps: int = 64              # rollout length per update
+    num_steps: int = 64
     update_epochs: int = 4
     num_minibatches: int = 4
     gamma: float = 0.99
@@ -48,7 +73,7 @@ class IPPOConfig:
     activation: str = "tanh"
     shared: bool = True
     agent_ids: bool = True
-    critic_input: str = "local"      # "local": own observation (IPPO); "global": all observations (MAPPO)
+    critic_input: str = "local"
 
     @property
     def num_updates(self) -> int:

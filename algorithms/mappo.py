@@ -17,6 +17,8 @@ from . import ippo
 
 @dataclasses.dataclass(frozen=True)
 class MAPPOConfig(ippo.IPPOConfig):
+    """IPPO's settings with the critic on the global state (``critic_input="global"``)."""
+
     critic_input: str = "global"
 
 

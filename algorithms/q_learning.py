@@ -69,39 +69,76 @@ from marbler_jax.rollout import StatefulPolicy
 
 @dataclasses.dataclass(frozen=True)
 class QConfig:
-    """Settings shared by VDN and QMIX (the benchmark's settings: ``marbler_jax_rl.recipes``)."""
+    """Settings shared by VDN and QMIX (the benchmark's settings: ``marbler_jax_rl.recipes``).
+
+    Attributes:
+        total_timesteps: env steps per seed (one env step moves every robot).
+        num_envs: sequences collected per update (one per parallel env).
+        num_steps: sequence length; 0 = the env's episode length.
+        buffer_size: sequences the replay buffer holds.
+        batch_size: sequences per gradient step.
+        train_steps: gradient steps per update.
+        learning_starts: env steps collected before the first gradient step.
+        lr: learning rate.
+        lr_decay: decay the learning rate linearly to 0 over the run.
+        optimizer: "adam", "radam" or "rmsprop".
+        max_grad_norm: global gradient-norm clip.
+        gamma: discount factor.
+        eps_start: exploration epsilon at the start.
+        eps_finish: exploration epsilon after ``eps_decay_steps``.
+        eps_decay_steps: env steps of the linear epsilon decay.
+        eps_spread: > 0 gives env ``i`` the epsilon ``eps ** (1 + eps_spread * i / (num_envs - 1))``; 0: one
+            epsilon for all envs.
+        persistent_envs: envs continue across updates (sequences may start mid-episode); else every update
+            collects fresh episodes.
+        target_update_interval: gradient steps between hard copies to the target network (``tau = 1``).
+        tau: < 1: Polyak averaging of the target network after every gradient step instead.
+        double_q: the online network picks the target's next action (double Q-learning).
+        td_lambda: > 0: TD(lambda) targets along each sequence; 0: one-step targets.
+        reward_norm: "none", "scale" (r / running std) or "standardise" ((r - mean) / std, EPyMARL's).
+        hidden: units of the agent network's hidden layers (and recurrent cell).
+        recurrent: False: feed-forward agents (the same as ``cell="none"``).
+        cell: recurrent cell of the agents, "gru", "mingru" or "none" (:class:`marbler_jax_rl.networks.QAgent`).
+        layer_norm: LayerNorm before the agents' hidden ReLUs (PQN's stabiliser).
+        shared: one agent network for every robot (else one per robot).
+        agent_ids: append a one-hot robot ID to each robot's input.
+        last_action: append the one-hot of each robot's previous action to its input.
+        learner_devices: > 1: each gradient step's batch is split over this many devices.
+        cache_targets: compute the TD targets once per update where that is exact and no dearer
+            (:attr:`targets_per_update`).
+    """
 
     total_timesteps: int = 1_000_000
-    num_envs: int = 16               # sequences collected per update
-    num_steps: int = 0               # sequence length; 0 = the env's episode length
-    buffer_size: int = 5000          # sequences
-    batch_size: int = 32             # sequences per gradient step
-    train_steps: int = 1             # gradient steps per update
-    learning_starts: int = 10_000    # env steps collected before the first gradient step
+    num_envs: int = 16
+    num_steps: int = 0
+    buffer_size: int = 5000
+    batch_size: int = 32
+    train_steps: int = 1
+    learning_starts: int = 10_000
     lr: float = 3e-4
-    lr_decay: bool = False           # linear decay to 0 over the run
-    optimizer: str = "adam"          # adam | radam | rmsprop
+    lr_decay: bool = False
+    optimizer: str = "adam"
     max_grad_norm: float = 10.0
     gamma: float = 0.99
     eps_start: float = 1.0
     eps_finish: float = 0.05
-    eps_decay_steps: int = 50_000    # env steps
-    eps_spread: float = 0.0          # > 0: per-env epsilon ** (1 + eps_spread * i / (num_envs - 1))
-    persistent_envs: bool = False    # envs continue across updates (sequences may start mid-episode)
-    target_update_interval: int = 200  # gradient steps between hard target copies (tau = 1)
-    tau: float = 1.0                 # < 1: Polyak averaging after every gradient step
+    eps_decay_steps: int = 50_000
+    eps_spread: float = 0.0
+    persistent_envs: bool = False
+    target_update_interval: int = 200
+    tau: float = 1.0
     double_q: bool = True
-    td_lambda: float = 0.0           # > 0: TD(lambda) targets along each sequence (0 = one-step)
-    reward_norm: str = "none"        # none | scale (r / std) | standardise ((r - mean) / std, EPyMARL's)
+    td_lambda: float = 0.0
+    reward_norm: str = "none"
     hidden: int = 128
-    recurrent: bool = True           # False: feed-forward agents (same as cell="none")
-    cell: str = "gru"                # gru | mingru | none (marbler_jax_rl.networks.QAgent)
-    layer_norm: bool = False         # LayerNorm before the agents' hidden ReLUs (PQN's stabiliser)
+    recurrent: bool = True
+    cell: str = "gru"
+    layer_norm: bool = False
     shared: bool = True
     agent_ids: bool = True
-    last_action: bool = False        # the one-hot of each agent's previous action in its input
-    learner_devices: int = 1         # > 1: each gradient step's batch split over this many devices
-    cache_targets: bool = True       # targets once per update where that is exact and cheaper (see above)
+    last_action: bool = False
+    learner_devices: int = 1
+    cache_targets: bool = True
 
     @property
     def targets_per_update(self) -> bool:

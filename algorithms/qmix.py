@@ -50,6 +50,13 @@ class QMixer(nn.Module):
 
 @dataclasses.dataclass(frozen=True)
 class QMIXConfig(q_learning.QConfig):
+    """VDN's settings plus the mixer's.
+
+    Attributes:
+        mixer_embed: width of the mixing network's hidden layer.
+        hypernet_hidden: hidden units of the hypernetworks that make the mixer's weights.
+    """
+
     mixer_embed: int = 32
     hypernet_hidden: int = 64
 

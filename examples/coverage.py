@@ -26,17 +26,17 @@ class CoverageConfig(ScenarioConfig):
     cover_bonus: float = 5.0
     step_dist: float = 0.2
     start_dist: float = 0.3
-    ROBOT_INIT_RIGHT_THRESH: float = -0.5   # robots spawn left of this x
-    PREY_INIT_LEFT_THRESH: float = 0.0      # landmarks spawn right of this x
+    robot_band_right: float = -0.5   # robots spawn left of this x
+    goal_band_left: float = 0.0      # landmarks spawn right of this x
     max_episode_steps: int = 40
 
     def validate(self) -> None:
         super().validate()
         if self.n_agents < 1 or self.cover_radius <= 0:
             raise ValueError(f"need n_agents >= 1 and cover_radius > 0, got {self.n_agents}, {self.cover_radius}")
-        height = self.DOWN - self.UP
-        check_capacity("coverage", self.n_agents, self.start_dist, self.ROBOT_INIT_RIGHT_THRESH - self.LEFT, height)
-        check_capacity("coverage", self.n_agents, self.step_dist, self.RIGHT - self.PREY_INIT_LEFT_THRESH, height,
+        height = self.y_max - self.y_min
+        check_capacity("coverage", self.n_agents, self.start_dist, self.robot_band_right - self.x_min, height)
+        check_capacity("coverage", self.n_agents, self.step_dist, self.x_max - self.goal_band_left, height,
                        what="landmarks")
 
 

@@ -5,6 +5,9 @@
     obs, state = env.reset(key)                                   # obs [N, obs_dim] float32
     obs, state, rewards, done, info = env.step(key, state, actions)   # actions [N] int32
 
+Actions outside ``[0, num_actions)`` raise outside ``jit`` and are clipped under it; :func:`checked`
+runs a step with that check raising under ``jit`` too.
+
 One env step runs MARBLER's control loop (``robotarium_gym/utilities/roboEnv.py``):
 
 1. actions -> waypoints from the poses at the start of the step;
@@ -34,6 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
+from jax.experimental import checkify
 
 from marbler_jax import controllers, physics
 from marbler_jax.cbf import Multipliers
@@ -300,7 +304,8 @@ class MarblerEnv:
     def _check_actions(self, actions):
         """Shape/dtype errors always raise; out-of-range values raise when concrete (outside jit).
 
-        Under ``jit`` values cannot be inspected, so out-of-range actions are clipped there.
+        Under ``jit`` values cannot be inspected, so out-of-range actions are clipped there, unless the
+        caller runs under :func:`checked` (``jax.experimental.checkify``), which raises instead.
         """
         if not isinstance(actions, jax.core.Tracer):
             values = np.asarray(jax.device_get(actions))
@@ -316,4 +321,25 @@ class MarblerEnv:
             )
         if not jnp.issubdtype(actions.dtype, jnp.integer):
             raise ValueError(f"{self.name}: actions must be integers in [0, {self.num_actions}), got dtype {actions.dtype}")
+        checkify.debug_check(jnp.all((actions >= 0) & (actions < self.num_actions)),
+                             f"{self.name}: actions must be in [0, {self.num_actions}), got {{actions}}", actions=actions)
         return jnp.clip(actions.astype(jnp.int32), 0, self.num_actions - 1)
+
+
+def checked(fn):
+    """``fn`` jitted with the env's checks on traced values raising: an out-of-range action, which a
+    jitted ``step`` otherwise clips, raises ``checkify.JaxRuntimeError`` naming the actions. For
+    debugging (it adds a host round trip per call)::
+
+        step = marbler_jax.env.checked(jax.vmap(env.step))
+        obs, state, rewards, done, info = step(keys, state, actions)
+    """
+    program = jax.jit(checkify.checkify(fn, errors=checkify.user_checks))
+
+    def run(*args, **kwargs):
+        error, out = program(*args, **kwargs)
+        error.throw()
+        return out
+
+    return run
+

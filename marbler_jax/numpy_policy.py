@@ -8,8 +8,9 @@ server). A policy folder, written by ``marbler-jax export`` (:mod:`marbler_jax_r
   or ``"none"``; absent from specs written before it existed, where it is ``"gru"`` if ``recurrent``), ``shared``, ``agent_ids``,
   ``layer_norm`` (Q-agents; absent from earlier specs: false), ``last_action`` (Q-agents
   that also see the one-hot of their previous action; absent from earlier specs: false), ``num_agents``, ``obs_dim``,
-  ``num_actions``, ``hidden``, ``activation``, ``layers`` (actor MLP layer names in order) and
-  ``tensors`` (parameter name -> file name).
+  ``num_actions``, ``hidden``, ``activation``, ``layers`` (actor MLP layer names in order),
+  ``tensors`` (parameter name -> file name) and ``sha256`` (file name -> SHA-256 of its bytes, checked
+  at load; absent from earlier specs: unchecked).
 * one ``.npy`` per parameter tensor (``float32``; with a leading agent axis when not shared).
 
 Everything loads with ``np.load(path, allow_pickle=False)``. Network equations (the same as the
@@ -32,6 +33,7 @@ feed-forward agents), followed with ``last_action`` by the one-hot of the action
 """
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -191,10 +193,18 @@ def load_policy(folder) -> NumpyPolicy:
         raise ValueError(f"{folder} holds no {SPEC_FILE}; export a run with `marbler-jax export RUN --out {folder}`")
     try:
         spec = json.loads(str(np.load(spec_path, allow_pickle=False)))
+        for file, digest in spec.get("sha256", {}).items():
+            if file_sha256(folder / file) != digest:
+                raise ValueError(f"{folder / file} changed after export (checksum mismatch with {SPEC_FILE})")
         tensors = {name: np.load(folder / file, allow_pickle=False) for name, file in spec["tensors"].items()}
     except (OSError, ValueError, KeyError) as err:
         raise ValueError(f"cannot load the policy in {folder}: {err}") from err
     return NumpyPolicy(spec, tensors)
 
 
-__all__ = ["NumpyPolicy", "load_policy", "FORMAT", "SPEC_FILE", "CELLS"]
+def file_sha256(path) -> str:
+    """Hex SHA-256 of a file's bytes (what a spec's ``sha256`` entries hold)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+__all__ = ["NumpyPolicy", "load_policy", "file_sha256", "FORMAT", "SPEC_FILE", "CELLS"]

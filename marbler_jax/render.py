@@ -47,7 +47,7 @@ class FrameDrawer:
         # tiles), so they are hidden in the background
         self._outlines = [
             ax.add_patch(plt.Rectangle((x_min, y_min), x_max - x_min, y_max - y_min, fill=False, lw=2, color="black")),
-            ax.add_patch(plt.Rectangle((c.LEFT, c.UP), c.RIGHT - c.LEFT, c.DOWN - c.UP, fill=False, lw=0.6,
+            ax.add_patch(plt.Rectangle((c.x_min, c.y_min), c.x_max - c.x_min, c.y_max - c.y_min, fill=False, lw=0.6,
                                        ls="--", color="grey"))]
         # where ax.set_title would put the title (6 points above the axes), as a per-frame artist
         self._title_at = offset_copy(ax.transAxes, fig=fig, y=6, units="points")

@@ -29,7 +29,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from marbler_jax_rl.driver import load_run  # noqa: E402
+from marbler_jax_rl.run import load_run  # noqa: E402
 from marbler_jax.rollout import as_stateful, at_first_done  # noqa: E402
 
 

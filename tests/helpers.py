@@ -9,3 +9,24 @@ def interrupt_at(update: int):
             raise KeyboardInterrupt
 
     return on_chunk
+
+
+def tensorboard_steps(folder) -> dict[str, list[int]]:
+    """``{tag: [step, ...]}`` over every event file in ``folder`` (TFRecord framing: length, its CRC,
+    the serialized ``Event``, its CRC), in file order."""
+    import struct
+    from pathlib import Path
+
+    from tensorboardX.proto.event_pb2 import Event
+
+    steps: dict[str, list[int]] = {}
+    for file in sorted(Path(folder).glob("events.out.tfevents.*")):
+        data = file.read_bytes()
+        at = 0
+        while at < len(data):
+            (length,) = struct.unpack_from("<Q", data, at)
+            event = Event.FromString(data[at + 12: at + 12 + length])
+            at += 12 + length + 4
+            for value in event.summary.value:
+                steps.setdefault(value.tag, []).append(event.step)
+    return steps

@@ -9,9 +9,10 @@ import jax
 import numpy as np
 import pytest
 
-from marbler_jax_rl.driver import load_run
-from marbler_jax_rl.evaluate import greedy_episodes
+import marbler_jax
 from marbler_jax_rl.cli import main, parse_overrides
+from marbler_jax_rl.evaluate import greedy_episodes
+from marbler_jax_rl.run import load_run
 
 
 def load_script(name: str):
@@ -149,6 +150,58 @@ def test_version_list_and_help_defaults(capsys):
     with pytest.raises(SystemExit):
         main(["benchmark", "--help"])
     assert "(default: 5)" in capsys.readouterr().out
+
+
+def test_list_verbose_explains_every_config_key(capsys):
+    """Every field of every registered scenario's config has a documented meaning, and ``list -v``
+    prints it under the key."""
+    import dataclasses
+
+    from marbler_jax.registry import scenario_class
+    from marbler_jax.scenarios.base import field_docs
+
+    for name in marbler_jax.registered():
+        config_cls = scenario_class(name).Config
+        docs = field_docs(config_cls)
+        undocumented = [f.name for f in dataclasses.fields(config_cls) if not docs.get(f.name)]
+        assert not undocumented, f"{name}: add these to an Attributes: section: {undocumented}"
+    from marbler_jax_rl.recipes import RECIPES
+
+    for algo, chosen in RECIPES.items():
+        docs = field_docs(type(chosen.config))
+        undocumented = [f.name for f in dataclasses.fields(chosen.config) if not docs.get(f.name)]
+        assert not undocumented, f"{algo}: add these to an Attributes: section: {undocumented}"
+    assert main(["list", "-v"]) == 0
+    out = capsys.readouterr().out
+    assert "      mixer_embed = 32\n          width of the mixing network's hidden layer.\n" in out
+    assert "      num_prey = 6\n          prey per episode.\n" in out
+    assert "      y_min = -0.9\n          smallest waypoint y [m]" in out
+    assert "``" not in out and ":func:" not in out
+
+
+def test_every_command_that_reads_a_run_defaults_to_the_same_checkpoint(tmp_path):
+    """evaluate, export and render (and the Python API behind them) read the run's parameters from one
+    default checkpoint, so a user's evaluated, exported and rendered policy is the same one."""
+    import inspect
+
+    from marbler_jax_rl.cli import build_parser
+    from marbler_jax_rl.evaluate import evaluate_run
+    from marbler_jax_rl.export import export_policy
+    from marbler_jax_rl.run import DEFAULT_CHECKPOINT, Run
+
+    parser = build_parser()
+    defaults = {cmd: parser.parse_args([cmd, "RUN", "--out", "X"] if cmd != "evaluate" else [cmd, "RUN"]).checkpoint
+                for cmd in ("evaluate", "export", "render")}
+    assert defaults == dict.fromkeys(defaults, DEFAULT_CHECKPOINT)
+    for fn in (evaluate_run, export_policy, load_run, Run.params, Run.seed_params, Run.policy):
+        assert inspect.signature(fn).parameters["checkpoint"].default == DEFAULT_CHECKPOINT, fn
+    with pytest.raises(ValueError, match="is not a run folder"):
+        Run.open(tmp_path)
+    (tmp_path / "config.json").write_text('{"scenario": "warehouse", "algo": "vdn", "seeds": 1, "env": {}}')
+    with pytest.raises(ValueError, match=r"checkpoint must be one of \['best', 'final'\], got 'last'"):
+        Run.open(tmp_path).params("last")
+    with pytest.raises(ValueError, match="has no best checkpoint"):
+        Run.open(tmp_path).params()
 
 
 def test_ctrl_c_ends_with_one_line_and_exit_code_130(monkeypatch, capsys, tmp_path):

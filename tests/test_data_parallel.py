@@ -88,7 +88,7 @@ def test_two_devices_resume_bit_exactly(tmp_path):
     # this process has one device: the two-device run's checkpoints still restore (no device layout saved)
     import orbax.checkpoint as ocp
 
-    from marbler_jax_rl.driver import load_run
+    from marbler_jax_rl.run import load_run
 
     restored = ocp.CheckpointManager(tmp_path / "full" / "checkpoints").restore(4)
     kernel = np.load(tmp_path / "full" / "params.npz")["agent/params/fc1/kernel"]

@@ -13,7 +13,7 @@ import numpy as np
 
 import marbler_jax
 from marbler_jax_rl import ippo
-from marbler_jax_rl.driver import load_run
+from marbler_jax_rl.run import load_run
 from marbler_jax_rl.export import export_params
 from marbler_jax_rl.cli import main
 from marbler_jax.deploy.bundle import write_bundle

@@ -148,6 +148,14 @@ def test_bad_policy_folders_are_reported(tmp_path):
         NumpyPolicy(dict(q_agent, cell="lstm"), {})
     with pytest.raises(ValueError, match="a policy with last_action needs num_actions"):
         NumpyPolicy(dict(q_agent, last_action=True), {})
-    next((tmp_path / "p").glob("actor_Dense_0_kernel.npy")).write_bytes(b"garbage")
+    # a flipped byte in a weight file still loads as a valid .npy: the spec's checksums catch it
+    kernel_file = tmp_path / "p" / "actor_Dense_0_kernel.npy"
+    data = bytearray(kernel_file.read_bytes())
+    data[-3] ^= 0x40
+    kernel_file.write_bytes(bytes(data))
+    assert np.load(kernel_file).shape == good.t["actor.Dense_0.kernel"].shape
+    with pytest.raises(ValueError, match=r"actor_Dense_0_kernel.npy changed after export \(checksum mismatch"):
+        load_policy(tmp_path / "p")
+    kernel_file.write_bytes(b"garbage")
     with pytest.raises(ValueError, match="cannot load the policy"):
         load_policy(tmp_path / "p")

@@ -9,8 +9,8 @@ import marbler_jax
 from marbler_jax.rollout import episode_stats, make_rollout
 
 TWENTY = {
-    "simple_navigation": dict(n_agents=20, ROBOT_INIT_RIGHT_THRESH=0.0),
-    "predator_capture_prey": dict(predator=10, capture=10, ROBOT_INIT_RIGHT_THRESH=0.0),
+    "simple_navigation": dict(n_agents=20, robot_band_right=0.0),
+    "predator_capture_prey": dict(predator=10, capture=10, robot_band_right=0.0),
     "warehouse": dict(n_agents=20, start_dist=0.4),
     "material_transport": dict(n_fast_agents=10, n_slow_agents=10, end_goal_width=1.0, start_dist=0.25),
     "discovery": dict(n_sensing=10, n_tagging=10, agent_area=(1.5, 1.5)),

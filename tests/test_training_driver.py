@@ -11,9 +11,10 @@ import orbax.checkpoint as ocp
 import pytest
 
 import marbler_jax
-from tests.helpers import interrupt_at
-from marbler_jax_rl.driver import (ALGORITHMS, SEED_BATCHING, keep_improved, load_params, load_run, make_tester,
-                               seed_best_scores, train)
+from tests.helpers import interrupt_at, tensorboard_steps
+from marbler_jax_rl.driver import (ALGORITHMS, SEED_BATCHING, keep_improved, load_params, make_tester,
+                                  seed_best_scores, train)
+from marbler_jax_rl.run import Run, load_run
 from marbler_jax_rl.ippo import IPPOConfig, make_train
 
 HP = dict(num_envs=8, num_steps=8, num_minibatches=2, update_epochs=1, hidden=16)
@@ -57,6 +58,8 @@ def test_interrupted_run_resumes_bit_exactly(tmp_path):
     for name in full:
         np.testing.assert_array_equal(full[name], cut[name], err_msg=name)
     assert (tmp_path / "cut" / "metrics.jsonl").read_text().count("\n") == 4
+    # TensorBoard holds every update once, also those whose events the interrupted writer never flushed
+    assert tensorboard_steps(tmp_path / "cut" / "tensorboard")["train/sps"] == [64, 128, 192, 256]
     # the greedy test after every chunk picks each seed's best checkpoint, also across the interruption
     rows = [json.loads(line) for line in (tmp_path / "full" / "metrics.jsonl").read_text().splitlines()]
     tests = [r["test_return_mean"] for r in rows]
@@ -175,7 +178,7 @@ TWO_SEEDS = dict(scenario="simple_navigation", algo="ippo", total_steps=STEPS, s
 def test_best_checkpoint_keeps_each_seeds_best_and_evaluate_can_pick_the_best_seed(tmp_path):
     """``best/`` holds, per seed, the parameters of that seed's best greedy test (each seed an independent
     run); ``evaluate --best-seed`` plays only the seed with the highest one, as the paper's Table II does."""
-    from marbler_jax_rl.evaluate import best_seed, evaluate_run, markdown_table
+    from marbler_jax_rl.evaluate import evaluate_run, markdown_table
 
     run = tmp_path / "run"
     train(out=run, **TWO_SEEDS)
@@ -190,7 +193,7 @@ def test_best_checkpoint_keeps_each_seeds_best_and_evaluate_can_pick_the_best_se
         jax.tree_util.tree_map(lambda a, b: np.testing.assert_array_equal(a[s], b[s]), best, at_best)
 
     winner = int(per_seed.max(axis=0).argmax())
-    index, score = best_seed(run)
+    index, score = Run.open(run).best_seed()
     assert (index, score) == (winner, pytest.approx(per_seed.max()))
     every = evaluate_run(run, episodes=4)
     only = evaluate_run(run, episodes=4, seed_selection="best")
@@ -204,7 +207,7 @@ def test_best_checkpoint_keeps_each_seeds_best_and_evaluate_can_pick_the_best_se
     old = [json.dumps({k: v for k, v in r.items() if k != "test_returns"}) for r in rows]
     (run / "metrics.jsonl").write_text("\n".join(old) + "\n")
     with pytest.raises(ValueError, match="logs no per-seed scores"):
-        best_seed(run)
+        Run.open(run).best_seed()
 
 
 def test_a_kill_before_the_checkpoint_commits_repeats_the_chunk(tmp_path, monkeypatch):
@@ -232,6 +235,9 @@ def test_a_kill_before_the_checkpoint_commits_repeats_the_chunk(tmp_path, monkey
         return [{k: v for k, v in json.loads(line).items() if k != "sps"}
                 for line in (tmp_path / run / "metrics.jsonl").read_text().splitlines()]
     assert lines("cut") == lines("full")
+    # TensorBoard: every update once, chunk 2 (logged before the kill, then repeated) not doubled
+    steps = tensorboard_steps(tmp_path / "cut" / "tensorboard")["train/sps"]
+    assert steps == tensorboard_steps(tmp_path / "full" / "tensorboard")["train/sps"] == [64, 128, 192, 256]
     # the test log too: chunk 2's line, written before the kill, is not doubled by the repeat
     assert (tmp_path / "cut" / "tests.jsonl").read_text() == (tmp_path / "full" / "tests.jsonl").read_text()
     full, cut = np.load(tmp_path / "full" / "params.npz"), np.load(tmp_path / "cut" / "params.npz")
@@ -243,7 +249,7 @@ def test_a_kill_before_the_checkpoint_commits_repeats_the_chunk(tmp_path, monkey
 
 
 def test_evaluate_reports_the_training_loop_and_the_robots_loop_side_by_side(tmp_path):
-    from marbler_jax_rl.evaluate import evaluate_run, greedy_episodes, markdown_table, restore_params, summarize
+    from marbler_jax_rl.evaluate import evaluate_run, greedy_episodes, markdown_table, summarize
 
     run = tmp_path / "run"
     train(out=run, **dict(TWO_SEEDS, seeds=1, checkpoint_every=None, env_overrides={"control_period": 15}))
@@ -252,8 +258,33 @@ def test_evaluate_reports_the_training_loop_and_the_robots_loop_side_by_side(tmp
     # the deployed column is the same policy and start states in the every-tick env
     env1 = marbler_jax.make("simple_navigation", control_period=1)
     cfg = ALGORITHMS["ippo"][0](**json.loads((run / "config.json").read_text())["algorithm"])
-    params = jax.tree_util.tree_map(lambda x: x[0], restore_params(run, "best"))
+    params = jax.tree_util.tree_map(lambda x: x[0], Run.open(run).params("best"))
     direct = summarize(greedy_episodes(env1, ALGORITHMS["ippo"][2](env1, cfg, params), 8, jax.random.PRNGKey(0)))
     assert result["deployed"]["pooled"] == direct
     table = markdown_table(result)
     assert "| metric | training loop (period 15) | robots' loop (period 1, what a bundle deploys) |" in table
+
+
+def test_every_training_program_is_compiled_before_the_first_chunk(tmp_path):
+    """The chunk programs (also a shorter last chunk) and the greedy test compile before the loop starts,
+    so the progress bar's rate, ETA and sps measure the steady state: no compilation happens between the
+    "compiled in" line and the last chunk."""
+    events, marks = [], []
+
+    def on_event(name, seconds, **kwargs):
+        if name == "/jax/core/compile/backend_compile_duration":
+            events.append(name)
+
+    jax.monitoring.register_event_duration_secs_listener(on_event)
+    try:
+        def log(message):
+            if message.startswith("compiled in"):
+                marks.append(len(events))
+
+        # 5 updates in chunks of 2: programs of 2 and 1 updates
+        train(out=tmp_path / "run", on_chunk=lambda done: marks.append(len(events)),
+              **dict(TWO_SEEDS, total_steps=5 * 8 * 8, checkpoint_every=2, log=log))
+    finally:
+        jax.monitoring.unregister_event_duration_listener(on_event)
+    assert len(marks) == 4 and marks[0] > 0, marks      # compiled; then 3 chunks: 2, 2, 1 updates
+    assert marks[-1] == marks[0], f"compilations inside the training loop: {marks}"

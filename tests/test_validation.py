@@ -82,3 +82,29 @@ def test_a_non_finite_pose_is_a_violation():
     params = physics.PRESETS["robotarium"]
     poses = np.array([[np.nan, 0.0, 0.0], [0.5, 0.0, np.inf], [0.0, 0.5, 0.0]])
     np.testing.assert_array_equal(physics.out_of_bounds(params, poses), [True, True, False])
+
+
+def test_out_of_range_actions_raise_eagerly_and_in_the_checked_mode_under_jit():
+    """Outside jit an out-of-range action raises; a jitted step clips it (documented), and the same step
+    run through ``marbler_jax.env.checked`` raises naming the actions."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+    from jax.experimental import checkify
+
+    import marbler_jax
+    from marbler_jax.env import checked
+
+    env = marbler_jax.make("warehouse")
+    keys = jax.random.split(jax.random.PRNGKey(0), 2)
+    _, state = jax.vmap(env.reset)(keys)
+    bad = jnp.array([[0, 1, 2, 3, 4, 0], [0, 1, 2, 7, 4, 0]])
+    with pytest.raises(ValueError, match=r"actions must be in \[0, 5\), got \[0, 1, 2, 7, 4, 0\]"):
+        env.step(keys[1], jax.tree_util.tree_map(lambda x: x[1], state), bad[1])
+    clipped = jax.jit(jax.vmap(env.step))(keys, state, bad)                      # silently clipped to 4
+    same = jax.jit(jax.vmap(env.step))(keys, state, bad.at[1, 3].set(4))
+    jax.tree_util.tree_map(np.testing.assert_array_equal, clipped, same)
+    with pytest.raises(checkify.JaxRuntimeError, match=r"warehouse: actions must be in \[0, 5\), got \[0 1 2 7 4 0\]"):
+        checked(jax.vmap(env.step))(keys, state, bad)
+    good = checked(jax.vmap(env.step))(keys, state, bad.at[1, 3].set(4))
+    jax.tree_util.tree_map(np.testing.assert_array_equal, good, same)

@@ -45,6 +45,17 @@ START = ((-0.3, -0.8), (0.3, -0.8), (-0.9, -0.8), (0.9, -0.8))
 
 @dataclasses.dataclass(frozen=True)
 class ArcticTransportConfig(ScenarioConfig):
+    """Arctic Transport settings (MARBLER's names; robots 0, 1 are drones, 2 the ice and 3 the water robot).
+
+    Attributes:
+        normal_step: waypoint offset of a ground robot's move from a normal or goal tile [m].
+        fast_step: waypoint offset of a drone's move, and of a ground robot's from its own terrain [m].
+        slow_step: waypoint offset of a ground robot's move from the other liquid [m].
+        not_reached_penalty: team reward per ground robot that has never reached the goal, every step.
+        dist_multiplier: team reward per squared metre of a ground robot's distance to the goal point,
+            every step it is off the goal.
+    """
+
     normal_step: float = 0.2
     fast_step: float = 0.3
     slow_step: float = 0.1

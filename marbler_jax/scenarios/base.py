@@ -72,7 +72,10 @@ class ScenarioConfig:
             benchmark's recipes train with.
         zero_reset_obs: return all-zero observations from ``reset`` as MARBLER does (a bug kept
             only as a switch for reproducing the paper; default False returns the real observation).
-        LEFT, RIGHT, UP, DOWN: waypoint clamp box (UP is the *minimum* y, as in MARBLER).
+        x_min: smallest waypoint x [m] (MARBLER's ``LEFT``); also where the left spawn bands start.
+        x_max: largest waypoint x [m] (``RIGHT``); also where the right spawn bands end.
+        y_min: smallest waypoint y [m] (``UP``).
+        y_max: largest waypoint y [m] (``DOWN``).
     """
 
     max_episode_steps: int = 50
@@ -87,10 +90,10 @@ class ScenarioConfig:
     physics: str = "robotarium"
     robotarium: str | None = None
     zero_reset_obs: bool = False
-    LEFT: float = -1.4
-    RIGHT: float = 1.4
-    UP: float = -0.9
-    DOWN: float = 0.9
+    x_min: float = -1.4
+    x_max: float = 1.4
+    y_min: float = -0.9
+    y_max: float = 0.9
 
     @property
     def warm_start_barrier(self) -> bool:
@@ -124,24 +127,62 @@ class ScenarioConfig:
                     raise ValueError(f"robotarium={self.robotarium!r} uses {name}={value!r}, "
                                      f"but {name}={getattr(self, name)!r} was given; drop one of the two")
         physics.get_params(self.physics)
-        x_min, x_max, y_min, y_max = physics.get_params(self.physics).arena
-        if not (x_min <= self.LEFT < self.RIGHT <= x_max and y_min <= self.UP < self.DOWN <= y_max):
+        ax0, ax1, ay0, ay1 = physics.get_params(self.physics).arena
+        if not (ax0 <= self.x_min < self.x_max <= ax1 and ay0 <= self.y_min < self.y_max <= ay1):
             raise ValueError(
-                f"waypoint box LEFT={self.LEFT}, RIGHT={self.RIGHT}, UP={self.UP}, DOWN={self.DOWN} must lie "
-                f"inside the arena [{x_min}, {x_max}] x [{y_min}, {y_max}] with LEFT < RIGHT and UP < DOWN"
+                f"waypoint box x_min={self.x_min}, x_max={self.x_max}, y_min={self.y_min}, y_max={self.y_max} must "
+                f"lie inside the arena [{ax0}, {ax1}] x [{ay0}, {ay1}] with x_min < x_max and y_min < y_max"
             )
 
 
 @dataclasses.dataclass(frozen=True)
 class JaxRobotariumConfig(ScenarioConfig):
     """Defaults shared by the scenarios ported from JaxRobotarium (Discovery, Foraging, RWARE): its
-    waypoint box x in [-1.5, 1.5], 0.2 m waypoint steps, 101-step episodes, 30 ticks per step."""
+    waypoint box x in [-1.5, 1.5], 0.2 m waypoint steps, 101-step episodes, 30 ticks per step.
+
+    Attributes:
+        step_dist: waypoint offset of a move action [m].
+    """
 
     step_dist: float = 0.2
-    LEFT: float = -1.5
-    RIGHT: float = 1.5
+    x_min: float = -1.5
+    x_max: float = 1.5
     max_episode_steps: int = 100
     update_frequency: int = 30
+
+
+def field_docs(config_cls: type) -> dict[str, str]:
+    """Each field's meaning, one line, from the ``Attributes:`` sections of the dataclass ``config_cls``
+    and its bases (a subclass's entry wins); fields without one are absent."""
+    docs: dict[str, str] = {}
+    for cls in reversed(config_cls.__mro__):
+        docs.update(_attributes_section(cls.__dict__.get("__doc__") or ""))
+    names = {f.name for f in dataclasses.fields(config_cls)}
+    return {name: text for name, text in docs.items() if name in names}
+
+
+def _attributes_section(doc: str) -> dict[str, str]:
+    """``{name: text}`` of a Google-style ``Attributes:`` section (continuation lines joined)."""
+    entries: dict[str, str] = {}
+    lines = doc.expandtabs().splitlines()
+    try:
+        start = next(i for i, line in enumerate(lines) if line.strip() == "Attributes:")
+    except StopIteration:
+        return entries
+    indent, name = None, None
+    for line in lines[start + 1:]:
+        if not line.strip():
+            continue
+        depth = len(line) - len(line.lstrip())
+        indent = depth if indent is None else indent
+        if depth < indent:
+            break
+        if depth == indent and ":" in line:
+            name, text = line.strip().split(":", 1)
+            entries[name] = text.strip()
+        elif name is not None:
+            entries[name] += " " + line.strip()
+    return entries
 
 
 def _positive_int(config, *names):
@@ -151,13 +192,20 @@ def _positive_int(config, *names):
             raise ValueError(f"{name} must be a positive integer, got {value!r}")
 
 
+MARBLER_NAMES = {"LEFT": "x_min", "RIGHT": "x_max", "UP": "y_min", "DOWN": "y_max",
+                 "ROBOT_INIT_RIGHT_THRESH": "robot_band_right", "PREY_INIT_LEFT_THRESH": "goal_band_left"}
+"""MARBLER ``config.yaml`` keys that have a different name here (only to point a user to the new one)."""
+
+
 def build_config(config_cls: type[ScenarioConfig], overrides: dict[str, Any]) -> ScenarioConfig:
     """``config_cls(**overrides)`` with clear errors for unknown keys and wrong types, then validated."""
     fields = {f.name: f for f in dataclasses.fields(config_cls)}
     unknown = sorted(set(overrides) - set(fields))
     if unknown:
+        renamed = [f"{k} is {MARBLER_NAMES[k]} here" for k in unknown if MARBLER_NAMES.get(k) in fields]
         raise ValueError(
-            f"unknown config key(s) {unknown} for {config_cls.__name__}; valid keys: {sorted(fields)}"
+            f"unknown config key(s) {unknown} for {config_cls.__name__}"
+            + (f" ({'; '.join(renamed)})" if renamed else "") + f"; valid keys: {sorted(fields)}"
         )
     hints = typing.get_type_hints(config_cls)
     clean = {}
@@ -298,18 +346,18 @@ class Scenario:
 def waypoints(config, poses, moves, step):
     """MARBLER's action -> waypoint rule.
 
-    From the current position, action 0 moves -x (``max(x - d, LEFT)``), 1 +x (``min(x + d, RIGHT)``),
-    2 -y (``max(y - d, UP)``), 3 +y (``min(y + d, DOWN)``), 4 stays; the coordinate that does not move
+    From the current position, action 0 moves -x (``max(x - d, x_min)``), 1 +x (``min(x + d, x_max)``),
+    2 -y (``max(y - d, y_min)``), 3 +y (``min(y + d, y_max)``), 4 stays; the coordinate that does not move
     is clamped into the box on both sides.
     """
     xp = namespace(poses)
     x, y = poses[..., 0], poses[..., 1]
-    x_rest = xp.clip(x, config.LEFT, config.RIGHT)
-    y_rest = xp.clip(y, config.UP, config.DOWN)
-    gx = xp.where(moves == 0, xp.maximum(x - step, config.LEFT),
-                  xp.where(moves == 1, xp.minimum(x + step, config.RIGHT), x_rest))
-    gy = xp.where(moves == 2, xp.maximum(y - step, config.UP),
-                  xp.where(moves == 3, xp.minimum(y + step, config.DOWN), y_rest))
+    x_rest = xp.clip(x, config.x_min, config.x_max)
+    y_rest = xp.clip(y, config.y_min, config.y_max)
+    gx = xp.where(moves == 0, xp.maximum(x - step, config.x_min),
+                  xp.where(moves == 1, xp.minimum(x + step, config.x_max), x_rest))
+    gy = xp.where(moves == 2, xp.maximum(y - step, config.y_min),
+                  xp.where(moves == 3, xp.minimum(y + step, config.y_max), y_rest))
     return xp.stack([gx, gy], axis=-1)
 
 
@@ -369,12 +417,12 @@ def distinct_indices(key, n: int, m: int):
 def spawn_band(key, n, config, spacing, left: bool):
     """MARBLER's ``generate_initial_locations``: rps grid in a band, shifted to the left or right."""
     if left:
-        width = config.ROBOT_INIT_RIGHT_THRESH - config.LEFT
-        shift = -(width / 2 - config.ROBOT_INIT_RIGHT_THRESH)
+        width = config.robot_band_right - config.x_min
+        shift = -(width / 2 - config.robot_band_right)
     else:
-        width = config.RIGHT - config.PREY_INIT_LEFT_THRESH
-        shift = width / 2 - config.ROBOT_INIT_RIGHT_THRESH
-    xy = grid_positions(key, n, spacing, width, config.DOWN - config.UP)
+        width = config.x_max - config.goal_band_left
+        shift = width / 2 - config.robot_band_right
+    xy = grid_positions(key, n, spacing, width, config.y_max - config.y_min)
     import jax.numpy as jnp
 
     return xy + jnp.array([shift, 0.0], jnp.float32)

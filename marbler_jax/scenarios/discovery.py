@@ -43,6 +43,24 @@ UNSEEN = -5.0
 
 @dataclasses.dataclass(frozen=True)
 class DiscoveryConfig(JaxRobotariumConfig):
+    """Discovery settings (JaxRobotarium's, with MARBLER's env core).
+
+    Attributes:
+        n_sensing: sensing robots (indices ``0 .. n_sensing-1``).
+        n_tagging: tagging robots (the next indices).
+        num_landmarks: landmarks per episode.
+        sensing_radius: a sensing robot senses a landmark strictly closer than this [m].
+        tagging_radius: a tagging robot tags a landmark strictly closer than this [m].
+        sense_reward: team reward per landmark sensed for the first time.
+        tag_reward: team reward per landmark tagged for the first time.
+        time_penalty: team reward every step while some landmark is untagged.
+        terminate_on_success: end the episode once every landmark is tagged.
+        agent_spacing: spacing of the robots' spawn grid [m].
+        agent_area: (width, height) of the robots' spawn area at the arena's centre [m].
+        landmark_spacing: spacing of the landmarks' spawn grid [m].
+        landmark_area: (width, height) of the landmarks' spawn area at the arena's centre [m].
+    """
+
     n_sensing: int = 2
     n_tagging: int = 2
     num_landmarks: int = 6

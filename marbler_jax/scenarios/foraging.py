@@ -36,6 +36,19 @@ from marbler_jax.scenarios.base import (JaxRobotariumConfig, Scenario, check_gri
 
 @dataclasses.dataclass(frozen=True)
 class ForagingConfig(JaxRobotariumConfig):
+    """Foraging settings (JaxRobotarium's, with MARBLER's env core).
+
+    Attributes:
+        levels: each robot's level (one entry per robot, so its length is the team size).
+        num_resources: resources per episode.
+        forage_radius: robots strictly closer than this to a resource add their levels to collect it [m].
+        forage_reward: team reward per level collected.
+        time_penalty: team reward every step while some resource remains.
+        terminate_on_success: end the episode once every resource is collected.
+        spawn_spacing: spacing of the spawn grid of robots and resources [m].
+        spawn_area: (width, height) of the spawn area at the arena's centre [m].
+    """
+
     levels: tuple[float, ...] = (1.0, 2.0, 3.0)
     num_resources: int = 2
     forage_radius: float = 0.3

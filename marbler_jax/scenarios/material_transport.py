@@ -38,6 +38,28 @@ MESSAGES = 4
 
 @dataclasses.dataclass(frozen=True)
 class MaterialTransportConfig(ScenarioConfig):
+    """Material Transport settings (MARBLER's names; zone loads are normal distributions).
+
+    Attributes:
+        n_fast_agents: fast robots (indices ``0 .. n_fast_agents-1``).
+        n_slow_agents: slow robots (the next indices).
+        fast_step: waypoint offset of a fast robot's move [m].
+        slow_step: waypoint offset of a slow robot's move [m].
+        large_torque: load capacity of a slow robot.
+        small_torque: load capacity of a fast robot.
+        unload_multiplier: team reward per unit unloaded in the drop-off strip.
+        load_multiplier: team reward per unit loaded in a zone.
+        end_goal_width: width of the drop-off strip (left), of zone 2 (right) and of the spawn band [m].
+        time_penalty: team reward every step.
+        capability_aware: append ``[capacity, step]`` to each observation.
+        zone1_radius: radius of zone 1, the disk at the origin [m].
+        zone1_loc: mean of zone 1's load at reset (``int(Normal(loc, scale))``, at least 0).
+        zone1_scale: standard deviation of zone 1's load at reset.
+        zone2_loc: mean of zone 2's load at reset.
+        zone2_scale: standard deviation of zone 2's load at reset.
+        start_dist: spacing of the spawn grid [m].
+    """
+
     n_fast_agents: int = 2
     n_slow_agents: int = 2
     fast_step: float = 0.45
@@ -68,7 +90,7 @@ class MaterialTransportConfig(ScenarioConfig):
         if self.zone1_scale < 0 or self.zone2_scale < 0:
             raise ValueError("zone scales must be >= 0")
         check_capacity("material_transport", self.n_fast_agents + self.n_slow_agents, self.start_dist,
-                       self.end_goal_width, self.DOWN - self.UP)
+                       self.end_goal_width, self.y_max - self.y_min)
 
 
 @struct.dataclass
@@ -120,8 +142,8 @@ class MaterialTransport(Scenario):
         c = self.config
         k_pos, k1, k2 = jax.random.split(key, 3)
         width = c.end_goal_width
-        thresh = c.LEFT + c.end_goal_width
-        xy = grid_positions(k_pos, self.num_agents, c.start_dist, width, c.DOWN - c.UP)
+        thresh = c.x_min + c.end_goal_width
+        xy = grid_positions(k_pos, self.num_agents, c.start_dist, width, c.y_max - c.y_min)
         xy = xy + jnp.array([-(width / 2 - thresh), 0.0], jnp.float32)
         poses = jnp.concatenate([xy, jnp.zeros((self.num_agents, 1), jnp.float32)], axis=-1)
         zone1 = jnp.maximum(jnp.trunc(c.zone1_loc + c.zone1_scale * jax.random.normal(k1)), 0).astype(jnp.int32)

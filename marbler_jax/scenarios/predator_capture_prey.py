@@ -38,8 +38,29 @@ NO_PREY = -5.0
 
 @dataclasses.dataclass(frozen=True)
 class PredatorCapturePreyConfig(ScenarioConfig):
-    ROBOT_INIT_RIGHT_THRESH: float = -0.5
-    PREY_INIT_LEFT_THRESH: float = 0.5
+    """Predator Capture Prey settings (MARBLER's names).
+
+    Attributes:
+        robot_band_right: right edge of the robots' spawn band [m] (it starts at ``x_min``; MARBLER's
+            ``ROBOT_INIT_RIGHT_THRESH``).
+        goal_band_left: left edge of the prey's spawn band [m] (it ends at ``x_max``; MARBLER's
+            ``PREY_INIT_LEFT_THRESH``).
+        step_dist: waypoint offset of a move action [m]; also the prey's spawn grid spacing.
+        start_dist: spacing of the robots' spawn grid [m].
+        time_penalty: team reward every step.
+        sense_reward: team reward per prey sensed for the first time.
+        capture_reward: team reward per prey captured.
+        predator: number of sensing robots (indices ``0 .. predator-1``).
+        predator_radius: sensing radius of a sensing robot [m].
+        capture: number of capture robots (the next ``capture`` indices).
+        capture_radius: capture radius of a capture robot [m].
+        capability_aware: append ``[sensing radius, capture radius]`` to each local observation vector.
+        num_neighbors: other robots whose local vectors follow a robot's own in its observation.
+        num_prey: prey per episode.
+    """
+
+    robot_band_right: float = -0.5
+    goal_band_left: float = 0.5
     step_dist: float = 0.2
     start_dist: float = 0.3
     time_penalty: float = -0.05
@@ -67,9 +88,9 @@ class PredatorCapturePreyConfig(ScenarioConfig):
         if self.num_neighbors < 0:
             raise ValueError(f"num_neighbors must be >= 0, got {self.num_neighbors}")
         check_capacity("predator_capture_prey", self.predator + self.capture, self.start_dist,
-                       self.ROBOT_INIT_RIGHT_THRESH - self.LEFT, self.DOWN - self.UP)
+                       self.robot_band_right - self.x_min, self.y_max - self.y_min)
         check_capacity("predator_capture_prey", self.num_prey, self.step_dist,
-                       self.RIGHT - self.PREY_INIT_LEFT_THRESH, self.DOWN - self.UP, what="prey")
+                       self.x_max - self.goal_band_left, self.y_max - self.y_min, what="prey")
 
 
 @struct.dataclass

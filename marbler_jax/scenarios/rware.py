@@ -50,6 +50,16 @@ MOVE_SAMPLES = (0.2, 0.4, 0.6, 0.8, 1.0)
 
 @dataclasses.dataclass(frozen=True)
 class RwareConfig(JaxRobotariumConfig):
+    """RWARE settings (JaxRobotarium's, with MARBLER's env core).
+
+    Attributes:
+        n_agents: robots (also the number of shelves requested at a time).
+        num_cells: storage cells, in two rows (even, >= 2); each starts with its own shelf.
+        pickup_radius: a robot picks up or puts down a shelf within this distance of a cell [m].
+        delivery_x: a requested shelf carried to ``x > delivery_x`` is delivered [m].
+        deliver_reward: team reward per delivery.
+    """
+
     n_agents: int = 3
     num_cells: int = 6
     pickup_radius: float = 0.2

@@ -1,8 +1,8 @@
 """Simple Navigation (MARBLER ``Simple``): every robot drives to one shared goal; dense reward.
 
 Faithful to MARBLER: robots spawn on the rps grid (spacing ``start_dist``) in the left band
-``[LEFT, ROBOT_INIT_RIGHT_THRESH]`` facing +x; the goal spawns on a ``step_dist`` grid in the right
-band ``[PREY_INIT_LEFT_THRESH, RIGHT]``. Observation ``[own x, own y, (x, y) of every other robot in
+``[x_min, robot_band_right]`` facing +x; the goal spawns on a ``step_dist`` grid in the right
+band ``[goal_band_left, x_max]``. Observation ``[own x, own y, (x, y) of every other robot in
 index order, goal x, goal y]`` (``2 (N + 1)``). Reward per robot ``-reward_scaler * |p_i - goal|^2``
 (individual); a penalized violation gives every robot -5 and ends the episode. Reaching the goal does
 not end the episode (``max_episode_steps + 1`` = 51 steps).
@@ -24,11 +24,24 @@ from marbler_jax.scenarios.base import Scenario, ScenarioConfig, check_capacity,
 
 @dataclasses.dataclass(frozen=True)
 class SimpleConfig(ScenarioConfig):
+    """Simple Navigation settings (MARBLER's names).
+
+    Attributes:
+        n_agents: robots.
+        robot_band_right: right edge of the robots' spawn band [m] (it starts at ``x_min``; MARBLER's
+            ``ROBOT_INIT_RIGHT_THRESH``).
+        goal_band_left: left edge of the goal's spawn band [m] (it ends at ``x_max``; MARBLER's
+            ``PREY_INIT_LEFT_THRESH``).
+        step_dist: waypoint offset of a move action [m]; also the goal's spawn grid spacing.
+        start_dist: spacing of the robots' spawn grid [m].
+        reward_scaler: each robot's reward is ``-reward_scaler`` times its squared distance to the goal.
+    """
+
     n_agents: int = 4
-    LEFT: float = -1.45
-    RIGHT: float = 1.45
-    ROBOT_INIT_RIGHT_THRESH: float = -0.5
-    PREY_INIT_LEFT_THRESH: float = 0.5
+    x_min: float = -1.45
+    x_max: float = 1.45
+    robot_band_right: float = -0.5
+    goal_band_left: float = 0.5
     step_dist: float = 0.2
     start_dist: float = 0.3
     reward_scaler: float = 0.1
@@ -40,9 +53,9 @@ class SimpleConfig(ScenarioConfig):
         if self.n_agents < 1:
             raise ValueError(f"n_agents must be >= 1, got {self.n_agents}")
         check_capacity("simple_navigation", self.n_agents, self.start_dist,
-                       self.ROBOT_INIT_RIGHT_THRESH - self.LEFT, self.DOWN - self.UP)
-        check_capacity("simple_navigation", 1, self.step_dist, self.RIGHT - self.PREY_INIT_LEFT_THRESH,
-                       self.DOWN - self.UP, what="goals")
+                       self.robot_band_right - self.x_min, self.y_max - self.y_min)
+        check_capacity("simple_navigation", 1, self.step_dist, self.x_max - self.goal_band_left,
+                       self.y_max - self.y_min, what="goals")
 
 
 @struct.dataclass

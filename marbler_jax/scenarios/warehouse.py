@@ -32,6 +32,18 @@ from marbler_jax.scenarios.base import Scenario, ScenarioConfig, check_capacity,
 
 @dataclasses.dataclass(frozen=True)
 class WarehouseConfig(ScenarioConfig):
+    """Warehouse settings (MARBLER's names).
+
+    Attributes:
+        n_agents: robots (even indices green, odd red).
+        num_neighbors: other robots whose local vectors follow a robot's own in its observation.
+        step_dist: waypoint offset of a move action [m].
+        start_dist: spacing of the spawn grid [m].
+        load_reward: reward of a robot that loads in its load zone.
+        unload_reward: reward of a loaded robot that unloads in its unload zone.
+        goal_width: depth of the load (right) and unload (left) zones [m].
+    """
+
     n_agents: int = 6
     num_neighbors: int = 5
     step_dist: float = 0.2
@@ -50,7 +62,7 @@ class WarehouseConfig(ScenarioConfig):
             raise ValueError(f"num_neighbors must be >= 0, got {self.num_neighbors}")
         if not 0 < self.goal_width < 1.5:
             raise ValueError(f"goal_width must be in (0, 1.5), got {self.goal_width}")
-        check_capacity("warehouse", self.n_agents, self.start_dist, self.RIGHT - self.LEFT, self.DOWN - self.UP)
+        check_capacity("warehouse", self.n_agents, self.start_dist, self.x_max - self.x_min, self.y_max - self.y_min)
 
 
 @struct.dataclass
@@ -79,8 +91,8 @@ class Warehouse(Scenario):
     def reset(self, key):
         c = self.config
         k_pos, k_theta = jax.random.split(key)
-        xy = grid_positions(k_pos, self.num_agents, c.start_dist, c.RIGHT - c.LEFT, c.DOWN - c.UP)
-        shift = jnp.array([(1.5 + c.LEFT) / 2 - (1.5 - c.RIGHT) / 2, -(1 + c.UP) / 2 + (1 - c.DOWN) / 2], jnp.float32)
+        xy = grid_positions(k_pos, self.num_agents, c.start_dist, c.x_max - c.x_min, c.y_max - c.y_min)
+        shift = jnp.array([(1.5 + c.x_min) / 2 - (1.5 - c.x_max) / 2, -(1 + c.y_min) / 2 + (1 - c.y_max) / 2], jnp.float32)
         theta = jax.random.uniform(k_theta, (self.num_agents, 1), jnp.float32) * 2 * math.pi - math.pi
         poses = jnp.concatenate([xy + shift, theta], axis=-1)
         return poses, WarehouseState(loaded=jnp.zeros(self.num_agents, bool))

@@ -1,0 +1,130 @@
+"""Checkpoints a resume can trust: a SHA-256 manifest beside every checkpoint, checked before a restore.
+
+Orbax commits a checkpoint atomically but does not notice a file that changed afterwards (a flipped
+byte restores silently as other numbers). Each orbax step folder therefore gets ``manifest.sha256``,
+written last, listing every file's digest; a step folder without one was interrupted before it was
+verified. :func:`restore_latest` walks back from the newest step to the newest one whose manifest
+matches and that restores, with one warning line per skipped step. Single files (``params.npz``) get a
+``<name>.sha256`` beside them.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+from typing import Callable
+
+MANIFEST = "manifest.sha256"
+
+
+def file_digest(path: Path) -> str:
+    """Hex SHA-256 of a file's bytes."""
+    sha = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            sha.update(block)
+    return sha.hexdigest()
+
+
+def _atomic_text(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def write_manifest(folder: Path) -> None:
+    """``folder/manifest.sha256``: ``<digest>  <relative path>`` for every file below ``folder``."""
+    folder = Path(folder)
+    files = sorted(p for p in folder.rglob("*") if p.is_file() and p.name != MANIFEST)
+    _atomic_text(folder / MANIFEST, "".join(f"{file_digest(p)}  {p.relative_to(folder).as_posix()}\n"
+                                            for p in files))
+
+
+def manifest_problem(folder: Path) -> str | None:
+    """What is wrong with ``folder`` against its manifest (``None``: every listed file is intact)."""
+    folder = Path(folder)
+    manifest = folder / MANIFEST
+    if not manifest.exists():
+        return "it has no manifest (written before it was verified)"
+    for line in manifest.read_text().splitlines():
+        digest, _, name = line.partition("  ")
+        if not name or len(digest) != 64:
+            return f"its manifest is damaged ({MANIFEST})"
+        path = folder / name
+        if not path.is_file():
+            return f"{name} is missing"
+        if file_digest(path) != digest:
+            return f"{name} changed after it was written (checksum mismatch)"
+    return None
+
+
+def save(manager, step: int, tree) -> None:
+    """Save ``tree`` as orbax step ``step`` of ``manager`` and then its manifest."""
+    import orbax.checkpoint as ocp
+
+    manager.save(step, args=ocp.args.StandardSave(tree), force=True)
+    manager.wait_until_finished()
+    write_manifest(step_folder(manager, step))
+
+
+def step_folder(manager, step: int) -> Path:
+    return Path(manager.directory) / str(step)
+
+
+def restore_latest(manager, template=None, warn: Callable[[str], None] = print):
+    """``(step, tree)`` of the newest intact step of ``manager`` (``(None, None)`` when it has none).
+
+    A step is intact when its manifest matches and orbax restores it. Newer steps that are not are
+    reported through ``warn`` (one line each) and moved to ``<checkpoints>.damaged/`` (kept for a look,
+    out of orbax's way), so the run writes them anew. A run folder
+    from before manifests (no step has one) is trusted on orbax's restore alone. ``ValueError`` when
+    steps exist but none is intact."""
+    import orbax.checkpoint as ocp
+
+    steps = sorted(manager.all_steps(), reverse=True)
+    verified = any((step_folder(manager, s) / MANIFEST).exists() for s in steps)
+    args = ocp.args.StandardRestore(template) if template is not None else ocp.args.StandardRestore()
+    for step in steps:
+        problem = manifest_problem(step_folder(manager, step)) if verified else None
+        if problem is None:
+            try:
+                return step, manager.restore(step, args=args)
+            except Exception as err:   # orbax and TensorStore raise many types for damaged folders
+                problem = f"it cannot be restored ({type(err).__name__}: {str(err).splitlines()[0][:160]})"
+        aside = _move_aside(step_folder(manager, step))
+        warn(f"warning: skipping checkpoint {step_folder(manager, step)}: {problem}; moved to {aside}")
+        manager.reload()
+    if steps:
+        raise ValueError(f"no intact checkpoint left in {manager.directory}; start the run anew in another folder")
+    return None, None
+
+
+def _move_aside(folder: Path) -> Path:
+    import shutil
+
+    target = folder.parent.with_name(folder.parent.name + ".damaged") / folder.name
+    n = 1
+    while target.exists():
+        target = target.with_name(f"{folder.name}.{n}")
+        n += 1
+    target.parent.mkdir(parents=True, exist_ok=True)
+    shutil.move(str(folder), str(target))
+    return target
+
+
+def write_file_checksum(path: Path) -> None:
+    """``<path>.sha256`` beside ``path``."""
+    path = Path(path)
+    _atomic_text(path.with_name(path.name + ".sha256"), f"{file_digest(path)}  {path.name}\n")
+
+
+def check_file(path: Path) -> None:
+    """``ValueError`` naming ``path`` when it differs from its ``.sha256`` (no checksum file: unchecked)."""
+    path = Path(path)
+    sidecar = path.with_name(path.name + ".sha256")
+    if sidecar.exists() and sidecar.read_text().split("  ")[0] != file_digest(path):
+        raise ValueError(f"{path} changed after it was written (checksum mismatch with {sidecar.name})")
+
+
+__all__ = ["MANIFEST", "write_manifest", "manifest_problem", "save", "restore_latest", "write_file_checksum",
+           "check_file", "file_digest", "step_folder"]

@@ -1,0 +1,152 @@
+"""A run folder, opened: the one way the CLI and the Python API read what ``train`` wrote.
+
+``Run.open(path)`` reads ``config.json`` once; from there ``env()``, ``algorithm_config()``,
+``params(checkpoint)``, ``policy(seed_index, checkpoint)``, ``metrics()`` and ``best_seed()`` give the
+pieces, and every command (``evaluate``, ``export``, ``render``, ``benchmark``) takes its parameters
+from :data:`DEFAULT_CHECKPOINT` unless told otherwise.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+import marbler_jax
+
+CHECKPOINTS = ("best", "final")
+"""``"best"``: each seed's parameters at its best greedy test (orbax ``best/``); ``"final"``: the
+parameters at the end of training (``params.npz``)."""
+DEFAULT_CHECKPOINT = "best"
+"""What every command evaluates, exports and renders unless ``--checkpoint`` says otherwise: the model
+MARBLER's protocol reports (each seed's best greedy test return)."""
+
+CONFIG_FILE = "config.json"
+METRICS_FILE = "metrics.jsonl"
+
+
+@dataclasses.dataclass(frozen=True)
+class Run:
+    """A trained (or training) run folder: ``path`` and its parsed ``config.json``."""
+
+    path: Path
+    config: dict
+
+    @classmethod
+    def open(cls, path) -> "Run":
+        """The run in folder ``path``; ``ValueError`` if it holds no ``config.json``."""
+        path = Path(path)
+        if not (path / CONFIG_FILE).exists():
+            raise ValueError(f"{path} is not a run folder (no {CONFIG_FILE})")
+        return cls(path, json.loads((path / CONFIG_FILE).read_text()))
+
+    @property
+    def scenario(self) -> str:
+        return self.config["scenario"]
+
+    @property
+    def algo(self) -> str:
+        return self.config["algo"]
+
+    @property
+    def seeds(self) -> int:
+        return int(self.config["seeds"])
+
+    def env(self, **overrides):
+        """The env the run trained in, with ``overrides`` (e.g. ``control_period=1``) on top."""
+        return marbler_jax.make(self.scenario, **{**self.config["env"], **overrides})
+
+    def algorithm_config(self):
+        """The algorithm's typed config as trained."""
+        from .driver import ALGORITHMS
+
+        return ALGORITHMS[self.algo][0](**self.config["algorithm"])
+
+    def params(self, checkpoint: str = DEFAULT_CHECKPOINT):
+        """Seed-major parameters (leaves ``[seeds, ...]``) of ``checkpoint`` (one of :data:`CHECKPOINTS`)."""
+        if checkpoint not in CHECKPOINTS:
+            raise ValueError(f"checkpoint must be one of {list(CHECKPOINTS)}, got {checkpoint!r}")
+        if checkpoint == "final":
+            from .driver import load_params
+
+            if not (self.path / "params.npz").exists():
+                raise ValueError(f"{self.path} has no params.npz (the run has not finished); "
+                                 "try checkpoint='best'")
+            return load_params(self.path / "params.npz")
+        import orbax.checkpoint as ocp
+
+        from .checkpoints import MANIFEST, manifest_problem, step_folder
+
+        best = self.path / "best"
+        manager = ocp.CheckpointManager(best.absolute()) if best.exists() else None
+        if manager is None or manager.latest_step() is None:
+            raise ValueError(f"{self.path} has no best checkpoint in {best}; train first or use checkpoint='final'")
+        folder = step_folder(manager, manager.latest_step())
+        problem = manifest_problem(folder) if (folder / MANIFEST).exists() else None
+        if problem:
+            raise ValueError(f"the best checkpoint {folder} is damaged: {problem}; use checkpoint='final' or "
+                             "resume the run to write a new one")
+        try:
+            return manager.restore(manager.latest_step(), args=ocp.args.StandardRestore())
+        except Exception as err:   # orbax raises several types for damaged folders
+            raise ValueError(f"cannot restore the best checkpoint in {best}: {err}") from err
+
+    def seed_params(self, seed_index: int = 0, checkpoint: str = DEFAULT_CHECKPOINT):
+        """One seed's parameters (numpy leaves)."""
+        return select_seed(self.params(checkpoint), seed_index)
+
+    def policy(self, seed_index: int = 0, checkpoint: str = DEFAULT_CHECKPOINT, env=None):
+        """Greedy policy ``(key, obs [N, obs_dim], carry) -> (actions, carry)`` of one seed, acting in
+        ``env`` (default: :meth:`env`)."""
+        from .driver import ALGORITHMS
+
+        env = self.env() if env is None else env
+        greedy = ALGORITHMS[self.algo][2]
+        return greedy(env, self.algorithm_config(), self.seed_params(seed_index, checkpoint))
+
+    def _metric_lines(self) -> list[str]:
+        file = self.path / METRICS_FILE
+        return [line for line in file.read_text().splitlines() if line.strip()] if file.exists() else []
+
+    def metrics(self) -> list[dict[str, Any]]:
+        """``metrics.jsonl`` as a list of dicts (one per update; empty before the first)."""
+        return [json.loads(line) for line in self._metric_lines()]
+
+    def best_seed(self) -> tuple[int, float]:
+        """``(index, score)`` of the seed with the highest best greedy test return (best training return
+        for runs trained with ``test_episodes=0``): the model MARBLER's Table II reports ("we took the
+        model that achieved the highest reward for each algorithm", of five seeds)."""
+        from .driver import SEED_SCORE_KEY, seed_best_scores
+
+        lines = self._metric_lines()
+        tested = bool(self.config.get("test_episodes", 0))
+        key = SEED_SCORE_KEY[tested]
+        if self.seeds > 1 and not any(key in json.loads(line) for line in lines):
+            raise ValueError(f"{self.path} logs no per-seed scores ({key!r} in {METRICS_FILE}); "
+                             "evaluate all seeds instead")
+        scores = seed_best_scores(lines, self.seeds, tested)
+        if not np.isfinite(scores).any():
+            raise ValueError(f"{self.path} has no scored chunk yet ({METRICS_FILE}); train first")
+        index = int(np.argmax(scores))                        # unscored seeds are -inf
+        return index, float(scores[index])
+
+
+def select_seed(params, seed_index: int):
+    """One seed's parameters (numpy leaves) from seed-major ``params``, with a clear range error."""
+    seeds = jax.tree_util.tree_leaves(params)[0].shape[0]
+    if isinstance(seed_index, bool) or not isinstance(seed_index, (int, np.integer)) or not 0 <= seed_index < seeds:
+        raise ValueError(f"seed index {seed_index!r} out of range: the run has {seeds} seed(s)")
+    return jax.tree_util.tree_map(lambda x: np.asarray(x[seed_index]), params)
+
+
+def load_run(run, seed_index: int = 0, checkpoint: str = DEFAULT_CHECKPOINT):
+    """``(env, greedy policy)`` of seed ``seed_index`` of run folder ``run``."""
+    opened = Run.open(run)
+    env = opened.env()
+    return env, opened.policy(seed_index, checkpoint, env)
+
+
+__all__ = ["Run", "CHECKPOINTS", "DEFAULT_CHECKPOINT", "load_run", "select_seed"]
