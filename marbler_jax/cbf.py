@@ -153,9 +153,10 @@ class CertificateInfo(NamedTuple):
     Attributes:
         max_violation: largest constraint violation of the returned SI velocity, measured as a
             distance in velocity space ``(a.u - b) / |a|`` [m/s] (<= 0 when every row holds).
-        feasible: ``max_violation <= tolerance * (1 + max |u|)`` and no degenerate row
-            (coincident robots that must separate); False means the returned input is the best
-            the fixed budget found for a problem that is infeasible or not yet solved.
+        feasible: ``solved`` and every robot's speed within :attr:`Barrier.speed_limit` (and every
+            input finite); False means the returned input is no certificate a robot can follow: the
+            best the fixed budget found for a problem that is infeasible or not yet solved, or a
+            solution that asks for more speed than a robot has (crowded robots pushed apart).
         active: number of rows with a positive multiplier.
         multipliers: the final :class:`Multipliers`; pass them as ``warm_start`` to the next solve
             of a nearby problem (the next control refresh of the same team).
@@ -163,6 +164,8 @@ class CertificateInfo(NamedTuple):
             (not ``feasible`` although zero velocity is not an admissible input either: every team
             where standing still satisfies every row has a solution, however far the fixed budget got);
             ``None`` for the other kinds.
+        solved: the QP's rows hold: ``max_violation <= tolerance * (1 + max |u|)`` and no degenerate
+            row (coincident robots that must separate).
     """
 
     max_violation: Any
@@ -170,6 +173,7 @@ class CertificateInfo(NamedTuple):
     active: Any
     multipliers: Any = None
     stopped: Any = None
+    solved: Any = None
 
 
 @functools.lru_cache(maxsize=None)
@@ -249,6 +253,14 @@ class Barrier:
     @property
     def is_differential_drive(self) -> bool:
         return self.kind in DD_KINDS
+
+    @property
+    def speed_limit(self) -> float | None:
+        """The fastest SI velocity [m/s] a certified robot may be given: ``magnitude_limit / cos(pi/8)``,
+        the corner of the speed octagon of today's Robotarium barrier (the most it certifies; a GRITSbot's
+        projection point cannot move faster than its 0.2 m/s wheel-limited speed). ``None`` for the
+        ``uni_dd`` kinds, whose wheel-speed rows bound it already."""
+        return None if self.magnitude_limit is None else self.magnitude_limit / math.cos(math.pi / 8)
 
     @property
     def is_v2(self) -> bool:
@@ -396,7 +408,7 @@ def _pass_through(barrier: Barrier, u_nom, n: int) -> CertificateInfo:
     xp = namespace(u_nom)
     zero = xp.zeros(u_nom.shape[:-2], dtype=u_nom.dtype)
     return CertificateInfo(zero, zero == 0, zero.astype(xp.int32),
-                           barrier.initial_multipliers(n, u_nom.shape[:-2], u_nom.dtype, xp), zero != 0)
+                           barrier.initial_multipliers(n, u_nom.shape[:-2], u_nom.dtype, xp), zero != 0, zero == 0)
 
 
 def _zero_if_infeasible(barrier: Barrier, u, info: CertificateInfo):
@@ -600,7 +612,7 @@ def solve_si(barrier: Barrier, u_nom, positions, warm_start: Multipliers | None 
             u_nom, barrier.magnitude_limit)
         zero = xp.zeros(batch, dtype=u_hat.dtype)
         return u_hat, CertificateInfo(zero, zero == 0, zero.astype(xp.int32),
-                                      barrier.initial_multipliers(0, batch, u_hat.dtype, xp))
+                                      barrier.initial_multipliers(0, batch, u_hat.dtype, xp), solved=zero == 0)
     nb = len(batch)
     fold = lambda v: None if v is None else to_minor(v, nb, xp)  # noqa: E731
     unbatch = lambda v: None if v is None else from_minor(v, batch, xp)  # noqa: E731
@@ -825,9 +837,13 @@ def _diagnostics(barrier, u, e, b, d2, valid, lam, lo, hi, box, xp, wheel_rows=N
         worst = xp.maximum(worst, xp.max(poly_viol, axis=rows))
         active = active + xp.sum(poly > 0, axis=rows)
     scale = 1 + xp.max(xp.abs(u), axis=rows)
-    feasible = (worst <= barrier.tolerance * scale) & ~degenerate
-    stopped = ~feasible & ~zero_admissible if barrier.is_v2 else None
-    return CertificateInfo(worst, feasible, active, stopped=stopped)
+    solved = (worst <= barrier.tolerance * scale) & ~degenerate
+    stopped = ~solved & ~zero_admissible if barrier.is_v2 else None
+    feasible = solved
+    if barrier.speed_limit is not None:   # a solution no robot can drive is no certificate either
+        speed = xp.sqrt(xp.max(xp.sum(u * u, axis=1), axis=0))
+        feasible = feasible & (speed <= barrier.speed_limit * (1 + barrier.tolerance))
+    return CertificateInfo(worst, feasible, active, stopped=stopped, solved=solved)
 
 
 __all__ = ["make_barrier", "Barrier", "CertificateInfo", "Multipliers", "KINDS", "SI_KINDS", "UNI_KINDS", "DD_KINDS",

@@ -99,7 +99,7 @@ def test_constraints_hold_after_certification(kind):
     u_nom = rng.normal(size=x.shape) * 0.2
     with jax.enable_x64(True):
         u, info = barrier.solve(jnp.asarray(u_nom), jnp.asarray(x))
-    assert bool(np.all(info.feasible)), f"max violation {float(np.max(info.max_violation)):.2e}"
+    assert bool(np.all(info.solved)), f"max violation {float(np.max(info.max_violation)):.2e}"
     # independent re-check of every pair row: -2 e.u_i + 2 e.u_j <= gain h^3 (relative 1e-4)
     u = np.asarray(u)
     iu, ju = np.triu_indices(8, 1)
@@ -154,7 +154,28 @@ def test_converged_solve_meets_the_kkt_conditions(kind, n):
         assert mult.min() >= 0                                    # dual feasibility
         assert row.max() <= 1e-7                                  # primal feasibility
         assert np.abs(row * mult).max() <= 1e-7                   # complementary slackness
-    assert bool(np.all(info.feasible))
+    assert bool(np.all(info.solved))
+    # feasible: solved, and no robot asked to go faster than a robot can
+    speed = np.linalg.norm(u, axis=-1).max(axis=-1)
+    np.testing.assert_array_equal(info.feasible, speed <= barrier.speed_limit * (1 + barrier.tolerance))
+
+
+@pytest.mark.parametrize("kind", ["si2", "uni2"])
+def test_a_certificate_faster_than_a_robot_is_not_feasible(kind):
+    """Two robots 1 cm apart: the unsafe gain (1e6) of the ``*2`` kinds pushes them apart at hundreds
+    of m/s, which no robot can follow, so ``feasible`` is False although the QP is solved; robots far
+    apart stay feasible."""
+    barrier = cbf.make_barrier(kind, iterations=200)
+    pose = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, np.pi]])
+    x = pose if barrier.is_unicycle else pose[:, :2]
+    u_nom = np.array([[0.1, 0.0], [-0.1, 0.0]])
+    with jax.enable_x64(True):
+        u, info = barrier.solve(jnp.asarray(u_nom), jnp.asarray(x))
+        far = x + np.array([[-0.5, 0, 0], [0.5, 0, 0]])[:, :x.shape[1]]
+        _, calm = barrier.solve(jnp.asarray(u_nom), jnp.asarray(far))
+    assert bool(calm.feasible) and bool(calm.solved)
+    assert bool(info.solved) and not bool(info.feasible)
+    assert np.isfinite(np.asarray(u)).all()
 
 
 def test_single_active_constraint_is_exact():
