@@ -56,6 +56,10 @@ def test_pettingzoo_parallel_api():
     obs, rewards, term, trunc, infos = env.step({a: 1 for a in env.agents})
     assert all(isinstance(r, float) for r in rewards.values())
     assert env.state().shape == (4 * 10,)
+    with pytest.raises(ValueError, match=r"missing actions for \['agent_3'\]"):
+        env.step({a: 1 for a in env.agents[:3]})
+    with pytest.raises(ValueError, match=r"actions for unknown agent\(s\) \['robot_9'\]"):
+        env.step(dict({a: 1 for a in env.agents}, robot_9=1))
     jax.clear_caches()
 
 

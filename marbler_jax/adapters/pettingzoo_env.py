@@ -47,6 +47,9 @@ class PettingZooEnv(ParallelEnv):
         missing = [a for a in self.agents if a not in actions]
         if missing:
             raise ValueError(f"missing actions for {missing}")
+        unknown = [a for a in actions if a not in self.agents]
+        if unknown:
+            raise ValueError(f"actions for unknown agent(s) {unknown}; the agents are {self.agents}")
         joint = np.array([actions[a] for a in self.possible_agents], dtype=np.int64)
         obs, rewards, terminated, truncated, info = self._env.step(joint)
         agents = self.agents
