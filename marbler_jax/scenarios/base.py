@@ -151,6 +151,32 @@ class JaxRobotariumConfig(ScenarioConfig):
     update_frequency: int = 30
 
 
+@dataclasses.dataclass(frozen=True)
+class BandSpawnConfig(ScenarioConfig):
+    """Settings of the scenarios that spawn robots in a left band and their targets (prey, goals) in a
+    right band, with MARBLER's ``generate_initial_locations`` (:func:`spawn_band`).
+
+    Attributes:
+        robot_band_right: right edge of the robots' spawn band [m] (it starts at ``x_min``; MARBLER's
+            ``ROBOT_INIT_RIGHT_THRESH``).
+        goal_band_left: left edge of the targets' spawn band [m] (it ends at ``x_max``; MARBLER's
+            ``PREY_INIT_LEFT_THRESH``).
+        step_dist: waypoint offset of a move action [m]; also the targets' spawn grid spacing.
+        start_dist: spacing of the robots' spawn grid [m].
+    """
+
+    robot_band_right: float = -0.5
+    goal_band_left: float = 0.5
+    step_dist: float = 0.2
+    start_dist: float = 0.3
+
+    def check_bands(self, scenario: str, robots: int, targets: int, what: str) -> None:
+        """Raise a clear error when either band's spawn grid cannot hold its robots / targets."""
+        height = self.y_max - self.y_min
+        check_capacity(scenario, robots, self.start_dist, self.robot_band_right - self.x_min, height)
+        check_capacity(scenario, targets, self.step_dist, self.x_max - self.goal_band_left, height, what=what)
+
+
 def field_docs(config_cls: type) -> dict[str, str]:
     """Each field's meaning, one line, from the ``Attributes:`` sections of the dataclass ``config_cls``
     and its bases (a subclass's entry wins); fields without one are absent."""

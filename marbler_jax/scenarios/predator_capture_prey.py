@@ -31,22 +31,16 @@ import jax.numpy as jnp
 from flax import struct
 
 from marbler_jax.xp import namespace
-from marbler_jax.scenarios.base import Scenario, ScenarioConfig, check_capacity, nearest_others, spawn_band
+from marbler_jax.scenarios.base import BandSpawnConfig, Scenario, nearest_others, spawn_band
 
 NO_PREY = -5.0
 
 
 @dataclasses.dataclass(frozen=True)
-class PredatorCapturePreyConfig(ScenarioConfig):
-    """Predator Capture Prey settings (MARBLER's names).
+class PredatorCapturePreyConfig(BandSpawnConfig):
+    """Predator Capture Prey settings (MARBLER's names; the prey spawn in the right band).
 
     Attributes:
-        robot_band_right: right edge of the robots' spawn band [m] (it starts at ``x_min``; MARBLER's
-            ``ROBOT_INIT_RIGHT_THRESH``).
-        goal_band_left: left edge of the prey's spawn band [m] (it ends at ``x_max``; MARBLER's
-            ``PREY_INIT_LEFT_THRESH``).
-        step_dist: waypoint offset of a move action [m]; also the prey's spawn grid spacing.
-        start_dist: spacing of the robots' spawn grid [m].
         time_penalty: team reward every step.
         sense_reward: team reward per prey sensed for the first time.
         capture_reward: team reward per prey captured.
@@ -59,10 +53,6 @@ class PredatorCapturePreyConfig(ScenarioConfig):
         num_prey: prey per episode.
     """
 
-    robot_band_right: float = -0.5
-    goal_band_left: float = 0.5
-    step_dist: float = 0.2
-    start_dist: float = 0.3
     time_penalty: float = -0.05
     sense_reward: float = 1.0
     capture_reward: float = 5.0
@@ -87,10 +77,7 @@ class PredatorCapturePreyConfig(ScenarioConfig):
             raise ValueError(f"num_prey must be >= 1, got {self.num_prey}")
         if self.num_neighbors < 0:
             raise ValueError(f"num_neighbors must be >= 0, got {self.num_neighbors}")
-        check_capacity("predator_capture_prey", self.predator + self.capture, self.start_dist,
-                       self.robot_band_right - self.x_min, self.y_max - self.y_min)
-        check_capacity("predator_capture_prey", self.num_prey, self.step_dist,
-                       self.x_max - self.goal_band_left, self.y_max - self.y_min, what="prey")
+        self.check_bands("predator_capture_prey", self.predator + self.capture, self.num_prey, "prey")
 
 
 @struct.dataclass

@@ -19,31 +19,21 @@ import jax.numpy as jnp
 from flax import struct
 
 from marbler_jax.xp import namespace
-from marbler_jax.scenarios.base import Scenario, ScenarioConfig, check_capacity, nearest_others, spawn_band
+from marbler_jax.scenarios.base import BandSpawnConfig, Scenario, nearest_others, spawn_band
 
 
 @dataclasses.dataclass(frozen=True)
-class SimpleConfig(ScenarioConfig):
-    """Simple Navigation settings (MARBLER's names).
+class SimpleConfig(BandSpawnConfig):
+    """Simple Navigation settings (MARBLER's names; the goal spawns in the right band).
 
     Attributes:
         n_agents: robots.
-        robot_band_right: right edge of the robots' spawn band [m] (it starts at ``x_min``; MARBLER's
-            ``ROBOT_INIT_RIGHT_THRESH``).
-        goal_band_left: left edge of the goal's spawn band [m] (it ends at ``x_max``; MARBLER's
-            ``PREY_INIT_LEFT_THRESH``).
-        step_dist: waypoint offset of a move action [m]; also the goal's spawn grid spacing.
-        start_dist: spacing of the robots' spawn grid [m].
         reward_scaler: each robot's reward is ``-reward_scaler`` times its squared distance to the goal.
     """
 
     n_agents: int = 4
     x_min: float = -1.45
     x_max: float = 1.45
-    robot_band_right: float = -0.5
-    goal_band_left: float = 0.5
-    step_dist: float = 0.2
-    start_dist: float = 0.3
     reward_scaler: float = 0.1
     max_episode_steps: int = 50
     update_frequency: int = 29
@@ -52,10 +42,7 @@ class SimpleConfig(ScenarioConfig):
         super().validate()
         if self.n_agents < 1:
             raise ValueError(f"n_agents must be >= 1, got {self.n_agents}")
-        check_capacity("simple_navigation", self.n_agents, self.start_dist,
-                       self.robot_band_right - self.x_min, self.y_max - self.y_min)
-        check_capacity("simple_navigation", 1, self.step_dist, self.x_max - self.goal_band_left,
-                       self.y_max - self.y_min, what="goals")
+        self.check_bands("simple_navigation", self.n_agents, 1, "goals")
 
 
 @struct.dataclass
