@@ -93,7 +93,7 @@ def test_two_devices_resume_bit_exactly(tmp_path):
     restored = ocp.CheckpointManager(tmp_path / "full" / "checkpoints").restore(4)
     kernel = np.load(tmp_path / "full" / "params.npz")["agent/params/fc1/kernel"]
     np.testing.assert_array_equal(restored["params"]["agent"]["params"]["fc1"]["kernel"], kernel)
-    env, policy = load_run(tmp_path / "full")
+    env, policy = load_run(tmp_path / "full", checkpoint="final")    # the parameters compared above
     actions, _ = policy.step(None, np.zeros((env.num_agents, env.obs_dim), np.float32),
                              policy.initial_carry(()), np.bool_(True))
     assert env.name == "predator_capture_prey" and actions.shape == (env.num_agents,)

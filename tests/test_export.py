@@ -112,7 +112,7 @@ def test_numpy_policy_module_needs_no_jax():
     imported = {alias.name.split(".")[0] for node in ast.walk(ast.parse(source.read_text()))
                 if isinstance(node, (ast.Import, ast.ImportFrom))
                 for alias in (node.names if isinstance(node, ast.Import) else [ast.alias(node.module or "")])}
-    assert imported <= {"__future__", "json", "pathlib", "numpy"}, imported
+    assert imported <= {"__future__", "hashlib", "json", "pathlib", "numpy"}, imported   # stdlib + numpy
 
 
 def test_bad_policy_folders_are_reported(tmp_path):
