@@ -27,6 +27,7 @@ import numpy as np
 
 import marbler_jax
 from marbler_jax.registry import canonical_name
+from marbler_jax.scenarios.base import renamed_keys
 from . import checkpoints, ippo, mappo, qmix, vdn
 from .hang_guard import HangGuard, hang_message
 from marbler_jax.rollout import batched_rollout, episode_stats, first_episode_metrics, make_rollout
@@ -185,6 +186,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
             raise ValueError(f"--resume: {out} has no config.json (nothing to resume)")
         saved = json.loads((out / "config.json").read_text())
         saved.setdefault("test_episodes", 0)       # run folders from before the greedy tests
+        saved["env"] = renamed_keys(saved.get("env", {}))
         defaults = {f.name: f.default for f in dataclasses.fields(env.config)}
         for name, value in config["env"].items():  # env settings added since the run was saved, at their defaults
             if name not in saved.get("env", {}) and value == defaults.get(name, dataclasses.MISSING):
@@ -237,7 +239,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         return HangGuard(on_hang, hang_seconds) if hang_seconds else contextlib.nullcontext()
     log(f"training {algo} on {scenario}: {num_updates} updates x {steps_per_update} env steps, "
         f"{seeds} seed(s) in one program, checkpoint every {chunk} updates")
-    t_start = time.perf_counter()
+    t_start, resumed_at = time.perf_counter(), done
     # every program is compiled before the bar starts, so its rate, ETA and sps are the steady state's
     sizes = sorted({min(chunk, num_updates - done), (num_updates - done) % chunk} - {0})
     with guard():
@@ -321,7 +323,8 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         trained = evaluate(env, greedy(env, cfg, first), eval_episodes, key)
         random = evaluate(env, None, eval_episodes, key)
     result = dict(trained=trained, random=random, train_seconds=seconds,
-                  env_steps_per_s=seeds * num_updates * steps_per_update / max(seconds, 1e-9),
+                  # this invocation's updates only (a resumed run trained the rest before)
+                  env_steps_per_s=seeds * (num_updates - resumed_at) * steps_per_update / max(seconds, 1e-9),
                   best_return=_nan_stat(np.mean, best_scores), best_return_per_seed=_json_floats(best_scores),
                   best_by="greedy test return" if test_episodes else "training return")
     atomic_write(out / "evaluation.json", json.dumps(result, indent=2))

@@ -41,7 +41,10 @@ class Run:
         path = Path(path)
         if not (path / CONFIG_FILE).exists():
             raise ValueError(f"{path} is not a run folder (no {CONFIG_FILE})")
-        return cls(path, json.loads((path / CONFIG_FILE).read_text()))
+        from marbler_jax.scenarios.base import renamed_keys
+
+        config = json.loads((path / CONFIG_FILE).read_text())
+        return cls(path, dict(config, env=renamed_keys(config.get("env", {}))))
 
     @property
     def scenario(self) -> str:

@@ -13,9 +13,10 @@ from marbler_jax_rl import checkpoints
 from marbler_jax_rl.driver import load_params, train
 from marbler_jax_rl.run import Run
 
-HP = dict(num_envs=8, num_steps=8, num_minibatches=2, update_epochs=1, hidden=16)
-RUN = dict(scenario="simple_navigation", algo="ippo", total_steps=4 * 8 * 8, seeds=2, hp=HP, eval_episodes=0,
-           checkpoint_every=1, keep=4, progress=False, test_episodes=8, seed=1)
+from tests.test_training_driver import TWO_SEEDS
+
+# the driver tests' settings, so their compiled programs are shared through the persistent cache
+RUN = {k: v for k, v in TWO_SEEDS.items() if k != "log"}
 
 
 @pytest.fixture(scope="module")
@@ -130,3 +131,23 @@ def test_damaged_final_parameters_and_best_checkpoint_are_refused_by_name(tmp_pa
     (out / "params.npz.sha256").unlink()
     with pytest.raises(ValueError, match="cannot read .*params.npz"):
         load_params(out / "params.npz")
+
+
+def test_a_run_saved_with_marblers_key_names_opens_and_resumes(tmp_path, full):
+    """Run folders written before the waypoint-box and spawn-band keys were renamed (``LEFT``, ``UP``,
+    ``ROBOT_INIT_RIGHT_THRESH``, ...) still open and resume: their saved names are read as today's."""
+    import shutil
+
+    out = tmp_path / "old"
+    shutil.copytree(full, out)
+    config = json.loads((out / "config.json").read_text())
+    old_names = {"x_min": "LEFT", "x_max": "RIGHT", "y_min": "UP", "y_max": "DOWN",
+                 "robot_band_right": "ROBOT_INIT_RIGHT_THRESH", "goal_band_left": "PREY_INIT_LEFT_THRESH"}
+    config["env"] = {old_names.get(k, k): v for k, v in config["env"].items()}
+    (out / "config.json").write_text(json.dumps(config))
+    run = Run.open(out)
+    assert run.env().config.y_min == -0.9 and run.env().config.robot_band_right == -0.5
+    train(out=out, resume=True, log=lambda *a: None, **RUN)        # finished already: nothing to redo
+    assert_same_params(out, full)
+    assert json.loads((out / "evaluation.json").read_text())["env_steps_per_s"] == 0   # none trained now
+    assert "y_min" in json.loads((out / "config.json").read_text())["env"]

@@ -220,7 +220,13 @@ def _positive_int(config, *names):
 
 MARBLER_NAMES = {"LEFT": "x_min", "RIGHT": "x_max", "UP": "y_min", "DOWN": "y_max",
                  "ROBOT_INIT_RIGHT_THRESH": "robot_band_right", "PREY_INIT_LEFT_THRESH": "goal_band_left"}
-"""MARBLER ``config.yaml`` keys that have a different name here (only to point a user to the new one)."""
+"""MARBLER ``config.yaml`` keys that have a different name here (only to point a user to the new one, and
+to read run folders saved before the keys were renamed)."""
+
+
+def renamed_keys(saved: dict[str, Any]) -> dict[str, Any]:
+    """A saved env config (a run's ``config.json``) with the keys renamed since under today's names."""
+    return {MARBLER_NAMES.get(key, key): value for key, value in saved.items()}
 
 
 def build_config(config_cls: type[ScenarioConfig], overrides: dict[str, Any]) -> ScenarioConfig:
