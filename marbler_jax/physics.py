@@ -322,9 +322,8 @@ def held_ticks_minor(params: RobotariumParams, x, y, c, s, v, w, ticks: int, sto
 
         Small teams compare robot i with robots i+1..N-1 (static slices). From 16 robots on, robot i
         meets robot i+s (mod N) for s = 1..N/2: every pair exactly once, as cyclic shifts of the
-        ``[N, B]`` arrays reduced in one op (on the 2-core CPU 2.3x faster than a masked ``[N, N, B]``
-        block at N=20, which also computed each pair twice, and steadier across N; slower than the
-        slices below ~16 robots)."""
+        ``[N, B]`` arrays reduced in one op: each pair computed once, where a masked ``[N, N, B]``
+        block would compute it twice (the slices are faster below ~16 robots)."""
         if n >= _SHIFTED_PAIRS_FROM:
             gaps = []
             for shift in range(1, n // 2 + 1):

@@ -133,7 +133,7 @@ def ippo_simple_nav_run(tmp_path_factory):
     return build_once(tmp_path_factory, "ippo-sn", build) / "run"
 
 
-# Modules whose tests train or compile whole programs (30-95 s each on the 2-core CI machine), in the
+# Modules whose tests train or compile whole programs (the suite's longest tests), in the
 # order to start them. pytest-xdist hands the tests out in collection order, so running these first
 # and the many short tests after them keeps both workers busy to the end instead of leaving one long
 # test alone on one worker.
