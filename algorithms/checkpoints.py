@@ -9,26 +9,20 @@ matches and that restores, with one warning line per skipped step. Single files 
 """
 from __future__ import annotations
 
-import hashlib
 import os
 from pathlib import Path
 from typing import Callable
 
+from marbler_jax.numpy_policy import file_sha256
+
 MANIFEST = "manifest.sha256"
 
 
-def file_digest(path: Path) -> str:
-    """Hex SHA-256 of a file's bytes."""
-    sha = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            sha.update(block)
-    return sha.hexdigest()
-
-
-def _atomic_text(path: Path, text: str) -> None:
+def atomic_write(path: Path, data: bytes | str) -> None:
+    """Write ``data`` to ``path`` through a temporary file and a rename: never a half-written file."""
+    path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
+    tmp.write_bytes(data.encode() if isinstance(data, str) else data)
     os.replace(tmp, path)
 
 
@@ -36,7 +30,7 @@ def write_manifest(folder: Path) -> None:
     """``folder/manifest.sha256``: ``<digest>  <relative path>`` for every file below ``folder``."""
     folder = Path(folder)
     files = sorted(p for p in folder.rglob("*") if p.is_file() and p.name != MANIFEST)
-    _atomic_text(folder / MANIFEST, "".join(f"{file_digest(p)}  {p.relative_to(folder).as_posix()}\n"
+    atomic_write(folder / MANIFEST, "".join(f"{file_sha256(p)}  {p.relative_to(folder).as_posix()}\n"
                                             for p in files))
 
 
@@ -53,7 +47,7 @@ def manifest_problem(folder: Path) -> str | None:
         path = folder / name
         if not path.is_file():
             return f"{name} is missing"
-        if file_digest(path) != digest:
+        if file_sha256(path) != digest:
             return f"{name} changed after it was written (checksum mismatch)"
     return None
 
@@ -115,16 +109,16 @@ def _move_aside(folder: Path) -> Path:
 def write_file_checksum(path: Path) -> None:
     """``<path>.sha256`` beside ``path``."""
     path = Path(path)
-    _atomic_text(path.with_name(path.name + ".sha256"), f"{file_digest(path)}  {path.name}\n")
+    atomic_write(path.with_name(path.name + ".sha256"), f"{file_sha256(path)}  {path.name}\n")
 
 
 def check_file(path: Path) -> None:
     """``ValueError`` naming ``path`` when it differs from its ``.sha256`` (no checksum file: unchecked)."""
     path = Path(path)
     sidecar = path.with_name(path.name + ".sha256")
-    if sidecar.exists() and sidecar.read_text().split("  ")[0] != file_digest(path):
+    if sidecar.exists() and sidecar.read_text().split("  ")[0] != file_sha256(path):
         raise ValueError(f"{path} changed after it was written (checksum mismatch with {sidecar.name})")
 
 
 __all__ = ["MANIFEST", "write_manifest", "manifest_problem", "save", "restore_latest", "write_file_checksum",
-           "check_file", "file_digest", "step_folder"]
+           "check_file", "atomic_write", "step_folder"]

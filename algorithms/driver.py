@@ -29,6 +29,7 @@ import marbler_jax
 from marbler_jax.registry import canonical_name
 from marbler_jax.scenarios.base import renamed_keys
 from . import checkpoints, ippo, mappo, qmix, vdn
+from .checkpoints import atomic_write
 from .hang_guard import HangGuard, hang_message
 from marbler_jax.rollout import batched_rollout, episode_stats, first_episode_metrics, make_rollout
 
@@ -48,13 +49,6 @@ ALGORITHM_SUMMARIES = {
     "qmix": "a monotonic hypernetwork mixer of the robots' Q-values on the global state (one shared network)",
     "qmix_ns": "QMIX with one network per robot (no parameter sharing)",
 }
-
-
-def atomic_write(path: Path, data: bytes | str) -> None:
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(data.encode() if isinstance(data, str) else data)
-    os.replace(tmp, path)
 
 
 def has_setting(algo: str, name: str) -> bool:

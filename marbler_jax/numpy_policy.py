@@ -203,8 +203,12 @@ def load_policy(folder) -> NumpyPolicy:
 
 
 def file_sha256(path) -> str:
-    """Hex SHA-256 of a file's bytes (what a spec's ``sha256`` entries hold)."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    """Hex SHA-256 of a file's bytes (what a spec's ``sha256`` entries hold), read in 1 MiB blocks."""
+    sha = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            sha.update(block)
+    return sha.hexdigest()
 
 
 __all__ = ["NumpyPolicy", "load_policy", "file_sha256", "FORMAT", "SPEC_FILE", "CELLS"]
