@@ -11,7 +11,7 @@ results file in marl-eval's layout::
         "step_<i>": {"step_count": env_steps, metric: [per-episode values]},
         "absolute_metrics": {metric: [per-episode values], "best_test_return": [x],
                              "env_steps": [per seed], "train_seconds": [updates' time, all seeds],
-                             "wall_seconds": [the cell's wall time in its last invocation]}}}}}}
+                             "wall_seconds": [the cell's wall time, summed over invocations]}}}}}}
 
 with the metrics of :data:`marbler_jax.rollout.EPISODE_METRICS` and the scenario's own (``prey_left``,
 ``material_left``, ...). The file is rewritten atomically after every cell. A rerun skips the cells the
@@ -39,6 +39,26 @@ ENV_NAME = "marbler"
 PAPER_ALGOS = ("vdn", "qmix", "qmix_ns", "mappo", "ippo")
 PAPER_SCENARIOS = ("predator_capture_prey", "warehouse", "material_transport", "arctic_transport")
 ABSOLUTE = "absolute_metrics"
+WALL_FILE = "wall_seconds.json"
+
+
+class WallClock:
+    """A cell's wall time summed over the invocations that trained it, kept in ``run/wall_seconds.json``
+    (``{"invocations": [seconds, ...]}``). The current invocation's entry is rewritten after every saved
+    checkpoint, so an interrupted invocation counts up to its last checkpoint (the work a resume keeps)."""
+
+    def __init__(self, run: Path, resume: bool):
+        self.path = Path(run) / WALL_FILE
+        previous = json.loads(self.path.read_text())["invocations"] if resume and self.path.exists() else []
+        self.invocations = [float(x) for x in previous] + [0.0]
+        self.start = time.perf_counter()
+
+    def save(self) -> float:
+        """Record this invocation's seconds so far; returns the cell's total."""
+        self.invocations[-1] = round(time.perf_counter() - self.start, 1)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write(self.path, json.dumps({"invocations": self.invocations}))
+        return float(sum(self.invocations))
 
 
 def results_name(process_index: int = 0, process_count: int = 1) -> str:
@@ -146,14 +166,21 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
         eta = f", ETA {sum(budgets[i:]) * spent_seconds / spent_steps / 3600:.1f} h" if spent_steps else ""
         log(f"cell {k}/{len(cells)}: {algo} on {scenario}, {seeds} seed(s) x {steps:,} env steps{eta}")
         run = out / "runs" / scenario / algo
-        t0 = time.perf_counter()
+        resume = (run / "config.json").exists()
+        clock = WallClock(run, resume)
+
+        def chunk_saved(update):
+            clock.save()
+            if on_chunk is not None:
+                on_chunk(update)
+
         train(scenario, algo, steps, seeds, run, env_overrides=env_overrides, hp=hp, eval_episodes=0,
-              checkpoint_every=max(1, updates // eval_points), resume=(run / "config.json").exists(), seed=seed,
-              progress=progress, log=log, test_episodes=test_episodes, on_chunk=on_chunk)
+              checkpoint_every=max(1, updates // eval_points), resume=resume, seed=seed,
+              progress=progress, log=log, test_episodes=test_episodes, on_chunk=chunk_saved)
         greedy = ALGORITHMS[algo][2]
         runs = cell_runs(run, env, lambda p: greedy(env, cfg, p), seeds, absolute_factor * test_episodes,
                          jax.random.PRNGKey(seed + 2024))
-        seconds = time.perf_counter() - t0
+        seconds = clock.save()
         for entry in runs.values():
             entry[ABSOLUTE]["wall_seconds"] = [round(seconds, 1)]
         results.setdefault(ENV_NAME, {}).setdefault(scenario, {})[algo] = runs

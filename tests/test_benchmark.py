@@ -130,6 +130,10 @@ def test_tiny_benchmark_writes_resumes_and_reports(tmp_path):
     assert len(runs["run_1"]["step_2"]["reward"]) == 4 and len(runs["run_1"][ABSOLUTE]["reward"]) == 8
     assert set(runs["run_0"][ABSOLUTE]) >= {"reward", "steps", "collisions", "out_of_bounds", "best_test_return",
                                             "train_seconds", "wall_seconds", "env_steps"}
+    # the resumed cell's wall time covers both invocations, not only the last one
+    invocations = json.loads((out / "runs" / "simple_navigation" / "mappo" / benchmark.WALL_FILE).read_text())
+    assert len(invocations["invocations"]) == 2 and min(invocations["invocations"]) > 0
+    assert runs["run_0"][ABSOLUTE]["wall_seconds"] == [round(sum(invocations["invocations"]), 1)]
     written = report.write_report(out, reps=20)
     assert "| simple_navigation | mappo | 2 |" in written[0].read_text()
     logs.clear()
