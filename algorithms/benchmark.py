@@ -22,7 +22,9 @@ takes every ``n``-th cell and writes ``results-p<i>.json``; ``marbler-jax report
 """
 from __future__ import annotations
 
+import fcntl
 import json
+import os
 import time
 from pathlib import Path
 
@@ -32,7 +34,7 @@ import numpy as np
 import marbler_jax
 from .driver import (ALGORITHMS, TESTS_FILE, atomic_write, build_config, has_setting, make_tester,
                      seed_best_scores, train)
-from .recipes import recipe
+from .recipes import recipe, settings_digest
 from marbler_jax.registry import canonical_name
 
 ENV_NAME = "marbler"
@@ -80,6 +82,22 @@ def load_results(folder: str | Path) -> dict:
     return merged
 
 
+def add_cell(path: Path, scenario: str, algo: str, runs: dict) -> dict:
+    """Write one cell's ``runs`` into the results file ``path``; returns the file's new contents.
+
+    The file is read again under an exclusive lock on its folder and the cell merged in, so cells
+    that other processes wrote into the same file since this one started are kept."""
+    folder = os.open(path.parent, os.O_RDONLY)
+    try:
+        fcntl.flock(folder, fcntl.LOCK_EX)
+        results = json.loads(path.read_text()) if path.exists() else {}
+        results.setdefault(ENV_NAME, {}).setdefault(scenario, {})[algo] = runs
+        atomic_write(path, json.dumps(results))
+        return results
+    finally:
+        os.close(folder)         # closing the descriptor releases the lock
+
+
 def finished_cells(results: dict) -> set[tuple[str, str]]:
     """``{(scenario, algo)}`` the results hold."""
     return {(task, algo) for task, algos in results.get(ENV_NAME, {}).items() for algo in algos}
@@ -104,9 +122,10 @@ def training_seconds(metrics: list[dict], seeds: int) -> float:
     return float(sum(seeds * n / m["sps"] for n, m in zip(per_update, metrics)))
 
 
-def cell_runs(run: Path, env, greedy_of_params, seeds: int, absolute_episodes: int, key) -> dict:
+def cell_runs(run: Path, env, greedy_of_params, seeds: int, absolute_episodes: int, key, digest: str) -> dict:
     """The marl-eval ``{"run_<k>": ...}`` entries of a trained cell's run folder ``run``: every seed's best
-    checkpoint plays ``absolute_episodes`` fresh greedy episodes, all seeds in one program."""
+    checkpoint plays ``absolute_episodes`` fresh greedy episodes, all seeds in one program. ``digest``
+    (:func:`~marbler_jax_rl.recipes.settings_digest` of the cell's settings) is kept as ``recipe``."""
     from .run import Run
 
     tests = [json.loads(line) for line in (run / TESTS_FILE).read_text().splitlines() if line.strip()]
@@ -122,7 +141,7 @@ def cell_runs(run: Path, env, greedy_of_params, seeds: int, absolute_episodes: i
                  for i, t in enumerate(tests)}
         entry[ABSOLUTE] = {m: [round(float(x), 5) for x in v[s]] for m, v in absolute.items()}
         entry[ABSOLUTE].update(best_test_return=[float(best_scores[s])], env_steps=[int(tests[-1]["env_steps"])],
-                               train_seconds=[round(training_seconds(metrics, seeds), 1)])
+                               train_seconds=[round(training_seconds(metrics, seeds), 1)], recipe=[digest])
         runs[f"run_{s}"] = entry
     return runs
 
@@ -158,6 +177,7 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
         k = len(cells) - len(todo) + i + 1
         env_overrides, hp, steps = recipe_of(algo).settings(scenario)
         steps = int(total_steps or steps)
+        digest = settings_digest(env_overrides, hp, steps)
         if learner_devices > 1 and has_setting(algo, "learner_devices"):
             hp["learner_devices"] = learner_devices
         env = marbler_jax.make(scenario, **env_overrides)
@@ -179,12 +199,11 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
               progress=progress, log=log, test_episodes=test_episodes, on_chunk=chunk_saved)
         greedy = ALGORITHMS[algo][2]
         runs = cell_runs(run, env, lambda p: greedy(env, cfg, p), seeds, absolute_factor * test_episodes,
-                         jax.random.PRNGKey(seed + 2024))
+                         jax.random.PRNGKey(seed + 2024), digest)
         seconds = clock.save()
         for entry in runs.values():
             entry[ABSOLUTE]["wall_seconds"] = [round(seconds, 1)]
-        results.setdefault(ENV_NAME, {}).setdefault(scenario, {})[algo] = runs
-        atomic_write(path, json.dumps(results))
+        results = add_cell(path, scenario, algo, runs)
         spent_steps += steps * seeds
         spent_seconds += seconds
         best = max(runs.values(), key=lambda r: r[ABSOLUTE]["best_test_return"][0])[ABSOLUTE]["reward"]
@@ -193,5 +212,5 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
     return results
 
 
-__all__ = ["run_benchmark", "load_results", "finished_cells", "grid", "results_name", "PAPER_ALGOS",
+__all__ = ["run_benchmark", "load_results", "add_cell", "finished_cells", "grid", "results_name", "PAPER_ALGOS",
            "PAPER_SCENARIOS", "ENV_NAME"]

@@ -11,10 +11,11 @@ one with a critic on each robot's own observation. All train in MARBLER's traini
 (controller and barrier recomputed every ``control_period = 15`` ticks).
 
 The value-based recipe learns from parallel fresh episodes the way PQN does (Gallici et al. 2024): 256
-episodes per update, no replay beyond them, each sample used four times (16 gradient steps of 64
-sequences), TD(lambda 0.8) targets from the network that collected the episodes, a minimal GRU of 32
-units with LayerNorm, gamma 0.95, Adam at 1.5e-3 decaying to 0, epsilon 1 -> 0.01 over 5M steps and
-each robot's previous action in its input. The PPO recipe is CleanRL/MAPPO's clipped PPO over 64
+episodes per update, no replay beyond them, each sample used eight times (32 gradient steps of 64
+sequences, the target network synced once per update), TD(lambda 0.8) targets from the network that
+collected the episodes, a minimal GRU of 32 units with LayerNorm, gamma 0.95, Adam at 1.5e-3 decaying
+to 0, epsilon 1 -> 0.01 over the first 1M steps (the remaining steps exploit) and each robot's previous
+action in its input. The PPO recipe is CleanRL/MAPPO's clipped PPO over 64
 parallel envs.
 
 ``paper`` holds the settings of MARBLER's EPyMARL model files instead (``../shared/spec/scenarios.md``
@@ -24,6 +25,8 @@ steps (MAPPO 25M). It is for comparison; on a CPU it runs at ~1k env-steps/s.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 from types import MappingProxyType
 from typing import Any, Mapping
 
@@ -68,20 +71,32 @@ class Recipe:
         """``(env_overrides, hyperparameters, total_steps)`` for the canonical ``scenario``."""
         return dict(self.env), self.hyperparameters(), self.total_steps(scenario)
 
+    def digest(self, scenario: str) -> str:
+        """:func:`settings_digest` of this recipe on the canonical ``scenario``."""
+        return settings_digest(*self.settings(scenario))
+
+
+def settings_digest(env_overrides: Mapping, hyperparameters: Mapping, total_steps: int) -> str:
+    """12 hex digits naming what a run trains with, so a results file can tell which cells the current
+    recipe made. ``learner_devices`` is left out: it splits the same computation over devices."""
+    hp = {k: v for k, v in hyperparameters.items() if k != "learner_devices"}
+    blob = json.dumps({"env": dict(env_overrides), "hp": hp, "steps": int(total_steps)}, sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:12]
+
 
 def _frozen(**kw) -> Mapping:
     return MappingProxyType(dict(kw))
 
 
 _VALUE = dict(hidden=32, cell="mingru", layer_norm=True, num_envs=256, buffer_size=256, batch_size=64,
-              train_steps=16, target_update_interval=16, td_lambda=0.8, double_q=False, lr=1.5e-3,
-              lr_decay=True, gamma=0.95, eps_finish=0.01, eps_decay_steps=5_000_000, learning_starts=0,
+              train_steps=32, target_update_interval=32, td_lambda=0.8, double_q=False, lr=1.5e-3,
+              lr_decay=True, gamma=0.95, eps_finish=0.01, eps_decay_steps=1_000_000, learning_starts=0,
               last_action=True)
 _PPO = dict(lr=1e-3, num_envs=64, num_steps=64, hidden=128, update_epochs=4, num_minibatches=4, ent_coef=0.01)
 
 # Env steps per seed; one value-based step costs about as much on every scenario (Warehouse has 6 robots).
-_VALUE_STEPS = _frozen(predator_capture_prey=20_000_000, warehouse=20_000_000, material_transport=20_000_000,
-                       arctic_transport=20_000_000, simple_navigation=2_000_000)
+_VALUE_STEPS = _frozen(predator_capture_prey=10_000_000, warehouse=10_000_000, material_transport=10_000_000,
+                       arctic_transport=10_000_000, simple_navigation=2_000_000)
 _PPO_STEPS = _frozen(predator_capture_prey=20_000_000, warehouse=20_000_000, material_transport=20_000_000,
                      arctic_transport=20_000_000, simple_navigation=300_000)
 
@@ -130,4 +145,4 @@ def settings(name: str, scenario: str, algo: str) -> tuple[dict, dict, int]:
     return chosen.settings(scenario)
 
 
-__all__ = ["Recipe", "RECIPES", "PAPER", "RECIPE_NAMES", "TRAINING_ENV", "recipe", "settings"]
+__all__ = ["Recipe", "RECIPES", "PAPER", "RECIPE_NAMES", "TRAINING_ENV", "recipe", "settings", "settings_digest"]

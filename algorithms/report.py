@@ -20,6 +20,7 @@ import numpy as np
 from .benchmark import ABSOLUTE, ENV_NAME, PAPER_ALGOS, PAPER_SCENARIOS, load_results
 from .driver import atomic_write
 from .evaluate import PAPER
+from .recipes import RECIPES
 
 # Table order and direction: True where higher is better.
 METRICS = {"reward": True, "steps": False, "prey_left": False, "material_left": False, "collisions": False,
@@ -105,6 +106,16 @@ def reached(metric: str, ours: float, paper: float | None) -> bool | None:
     return ours >= paper if METRICS[metric] else ours <= paper
 
 
+def off_recipe(scenario: str, algo: str, runs: dict) -> bool:
+    """Whether a cell was trained with other settings than ``algo``'s current recipe (an earlier recipe, a
+    ``--total-steps`` budget, or a results file that does not say)."""
+    made = next(iter(runs.values()))[ABSOLUTE].get("recipe", [None])[0]
+    return algo not in RECIPES or made != RECIPES[algo].digest(scenario)
+
+
+OFF_RECIPE_MARK = "†"
+
+
 def metric_table(results: dict, metric: str, reps: int) -> str | None:
     """One metric's Markdown table over every cell that has it; None where no cell does."""
     tasks = results.get(ENV_NAME, {})
@@ -121,7 +132,8 @@ def metric_table(results: dict, metric: str, reps: int) -> str | None:
             paper = PAPER.get(scenario, {}).get(algo, {}).get(metric)
             ok = reached(metric, best_mean, paper[0] if paper else None)
             steps = runs["run_0"][ABSOLUTE]["env_steps"][0]
-            rows.append(f"| {scenario} | {algo} | {len(runs)} | {steps / 1e6:.1f}M | {_fmt(iqm)} [{_fmt(low)}, {_fmt(high)}] "
+            mark = OFF_RECIPE_MARK if off_recipe(scenario, algo, runs) else ""
+            rows.append(f"| {scenario} | {algo}{mark} | {len(runs)} | {steps / 1e6:.1f}M | {_fmt(iqm)} [{_fmt(low)}, {_fmt(high)}] "
                         f"| {_fmt(best_mean)} ± {_fmt(float(np.std(best)))} | "
                         f"{f'{paper[0]:g} ± {paper[1]:g}' if paper else '—'} | "
                         f"{'—' if ok is None else ('yes' if ok else '**no**')} |")
@@ -208,6 +220,9 @@ def report_markdown(results: dict, reps: int = 2000) -> str:
         table = metric_table(results, metric, reps)
         if table:
             parts += [table, ""]
+    if any(off_recipe(s, a, tasks[s][a]) for s, a in cells):
+        parts += [f"{OFF_RECIPE_MARK} trained with other settings than the algorithm's current recipe (an earlier "
+                  "recipe or another step budget); rerun the cell to compare it with the recipe.", ""]
     missing = [f"{a} on {s}" for s in PAPER_SCENARIOS for a in PAPER_ALGOS if a not in tasks.get(s, {})]
     if missing:
         parts += ["### Cells not in the results yet", "", ", ".join(missing) + ".", ""]
@@ -222,7 +237,7 @@ def report_markdown(results: dict, reps: int = 2000) -> str:
 RESULTS_HEAD = """# Results
 
 MARBLER's Table II (simulation) reproduced with `marbler-jax benchmark`: every cell trained with its
-algorithm's recipe (`algorithms/recipes.py`), five seeds in one program, each seed tested greedily at 20
+algorithm's recipe (`algorithms/recipes.py`; † marks a cell made with other settings), five seeds in one program, each seed tested greedily at 20
 points of training and then its best checkpoint evaluated over fresh episodes. This file is generated:
 
 ```bash
@@ -266,4 +281,4 @@ def write_report(folder: str | Path, out: str | Path | None = None, reps: int = 
 
 
 __all__ = ["write_report", "report_markdown", "iqm_ci", "probability_of_improvement", "run_scores",
-           "best_seed_run", "metric_table", "curve_points", "reached"]
+           "best_seed_run", "metric_table", "curve_points", "reached", "off_recipe"]

@@ -5,8 +5,14 @@ import json
 import os
 from pathlib import Path
 
-import numpy as np
-import pytest
+# One BLAS thread per process: the suite runs two xdist workers on two cores, and the worker's numpy and the
+# Robotarium simulators it starts (cvxopt's QP solver) would otherwise spin thread pools against each other,
+# which makes a bundle episode in the rps venvs tens of times slower. Set before numpy loads its BLAS.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
 # Many tests build the same training programs again (a run, then its interrupted twin and the resume;
 # the CLI and the API on the same settings): a persistent compilation cache shared by the xdist workers

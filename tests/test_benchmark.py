@@ -12,7 +12,7 @@ from marbler_jax_rl.benchmark import ABSOLUTE, ENV_NAME, finished_cells, grid, l
 pytest.importorskip("rliable")
 
 
-def _runs(rewards_per_run, best_test=None, steps=(100, 200)):
+def _runs(rewards_per_run, best_test=None, steps=(100, 200), recipe=None):
     runs = {}
     for k, rewards in enumerate(rewards_per_run):
         entry = {f"step_{i}": {"step_count": s, "reward": [float(r) * (i + 1) / len(steps) for r in rewards]}
@@ -21,6 +21,8 @@ def _runs(rewards_per_run, best_test=None, steps=(100, 200)):
                            "collisions": [0.0] * len(rewards), "out_of_bounds": [0.0] * len(rewards),
                            "best_test_return": [float(best_test[k] if best_test else np.mean(rewards))],
                            "env_steps": [steps[-1]], "train_seconds": [10.0]}
+        if recipe:
+            entry[ABSOLUTE]["recipe"] = [recipe]
         runs[f"run_{k}"] = entry
     return runs
 
@@ -75,8 +77,12 @@ def test_best_seed_is_the_best_test_return_and_reached_compares_with_the_paper()
 
 
 def test_report_renders_tables_curves_and_improvement(tmp_path):
-    results = {ENV_NAME: {"predator_capture_prey": {"vdn": _runs([[33.0, 34.0], [30.0, 31.0]]),
-                                                    "qmix": _runs([[20.0, 21.0], [25.0, 26.0]])}}}
+    from marbler_jax_rl.recipes import RECIPES
+
+    current = RECIPES["vdn"].digest("predator_capture_prey")
+    results = {ENV_NAME: {"predator_capture_prey": {
+        "vdn": _runs([[33.0, 34.0], [30.0, 31.0]], recipe=current),
+        "qmix": _runs([[20.0, 21.0], [25.0, 26.0]], recipe=current)}}}    # VDN's recipe made the QMIX cell
     (tmp_path / "results.json").write_text(json.dumps(results))
     docs = tmp_path / "docs"
     docs.mkdir()
@@ -88,6 +94,7 @@ def test_report_renders_tables_curves_and_improvement(tmp_path):
     assert "](../curves_predator_capture_prey.png)" in page             # relative to the page
     assert "qmix_ns on predator_capture_prey" in page.split("Cells not in the results yet")[1]
     assert "| predator_capture_prey | vdn | 2 | 0.0M | 32.00 [" in text
+    assert "| predator_capture_prey | qmix† | 2 |" in text and "† trained with other settings" in text
     assert "| 33.50 ± 0.50 | 33.25 ± 0.46 | yes |" in text       # best seed run_0 against the paper
     assert "| qmix | 0.00 [0.00, 0.00] | — |" in text              # P(qmix > vdn)
     assert (tmp_path / "curves_predator_capture_prey.png").stat().st_size > 1000
@@ -119,7 +126,14 @@ def test_tiny_benchmark_writes_resumes_and_reports(tmp_path):
     first = json.loads((out / "results.json").read_text())
     assert finished_cells(first) == {("simple_navigation", "ippo")}
     logs.clear()
-    results = run_benchmark(out, **kwargs)
+    other = _runs([[1.0, 2.0]])
+
+    def another_process_adds_a_cell(update):      # a concurrent benchmark writes into the same file
+        benchmark.add_cell(out / "results.json", "warehouse", "vdn", other)
+
+    results = run_benchmark(out, on_chunk=another_process_adds_a_cell, **kwargs)
+    assert results[ENV_NAME]["warehouse"]["vdn"] == other       # kept when this process wrote its cell
+    assert load_results(out) == results
     assert "1 already in" in logs[0] and not any("cell 1/2:" in line for line in logs)
     assert any(line.startswith("resuming from update 1") for line in logs)
     assert results[ENV_NAME]["simple_navigation"]["ippo"] == first[ENV_NAME]["simple_navigation"]["ippo"]
@@ -135,7 +149,7 @@ def test_tiny_benchmark_writes_resumes_and_reports(tmp_path):
     assert len(invocations["invocations"]) == 2 and min(invocations["invocations"]) > 0
     assert runs["run_0"][ABSOLUTE]["wall_seconds"] == [round(sum(invocations["invocations"]), 1)]
     written = report.write_report(out, reps=20)
-    assert "| simple_navigation | mappo | 2 |" in written[0].read_text()
+    assert "| simple_navigation | mappo† | 2 |" in written[0].read_text()     # not the recipe's settings
     logs.clear()
     run_benchmark(out, **kwargs)                       # all done: nothing trains
     assert logs == [f"benchmark: 2 cell(s) for this process, 2 already in {out / 'results.json'}"]

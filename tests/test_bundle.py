@@ -115,7 +115,7 @@ def _rps_python() -> Path:
                                                capture_output=True).returncode == 0
     if not ready:
         subprocess.run([sys.executable, "-m", "venv", "--clear", str(RPS_VENV)], check=True)
-        subprocess.run([python, "-m", "pip", "install", "-q", "--disable-pip-version-check",
+        subprocess.run([python, "-m", "pip", "install", "-q", "--no-compile", "--disable-pip-version-check",
                         "robotarium-python-simulator", "numpy>=1.24,<1.25"], check=True, timeout=900)
     assert subprocess.run([python, "-c", "import jax"], capture_output=True).returncode != 0, "rps venv has JAX"
     return python
@@ -133,7 +133,7 @@ def _rps_v2_python() -> Path:
     probe = "import rps.robotarium, numpy; assert numpy.__version__ == '2.2.6'; assert hasattr(rps.robotarium.Robotarium, 'debug')"
     if not (python.exists() and subprocess.run([python, "-c", probe], capture_output=True).returncode == 0):
         subprocess.run([sys.executable, "-m", "venv", "--clear", str(RPS_V2_VENV)], check=True)
-        subprocess.run([python, "-m", "pip", "install", "-q", "--disable-pip-version-check", *SERVER_VERSIONS,
+        subprocess.run([python, "-m", "pip", "install", "-q", "--no-compile", "--disable-pip-version-check", *SERVER_VERSIONS,
                         str(wheels[-1])], check=True, timeout=900)
     assert subprocess.run([python, "-c", "import jax"], capture_output=True).returncode != 0, "rps v2 venv has JAX"
     return python

@@ -1,6 +1,7 @@
 """Data-parallel value-based learning (``learner_devices``): the same gradient steps as one device
-(targets per batch, and targets once per update with the buffer's rows split over the devices), and an interrupted VDN run (GRU agents, two seeds, its replay buffer in the checkpoint; envs reset
-per update or carried on across updates) resumes bit-exactly. JAX picks its CPU device count when it first runs, so
+(targets per batch, and targets once per update with the buffer's rows split over the devices), and an
+interrupted VDN run (GRU agents, two seeds, its replay buffer, envs and hidden states in the checkpoint)
+resumes bit-exactly. JAX picks its CPU device count when it first runs, so
 the two-device checks run in a fresh interpreter."""
 from __future__ import annotations
 
@@ -54,20 +55,20 @@ RESUME = PRELUDE + textwrap.dedent("""
     from tests.helpers import interrupt_at
 
     # interrupted + resumed == uninterrupted, bit for bit, with two seeds and two devices; with persistent envs
-    # the checkpoint also holds the envs in mid-episode and the agents' hidden states
-    for persistent, root in ((False, sys.argv[1]), (True, sys.argv[1] + "/persistent")):
-        hp = dict(num_envs=4, num_steps=8, buffer_size=16, batch_size=4, learning_starts=0, hidden=16, train_steps=2,
-                  target_update_interval=3, learner_devices=2, persistent_envs=persistent)
-        common = dict(scenario="predator_capture_prey", algo="vdn", total_steps=4 * 4 * 8, seeds=2, hp=hp,
-                      eval_episodes=0, checkpoint_every=1, progress=False, log=lambda *a: None, test_episodes=0)
-        train(out=root + "/full", **common)
-        with pytest.raises(KeyboardInterrupt):
-            train(out=root + "/cut", on_chunk=interrupt_at(2), **common)
-        train(out=root + "/cut", resume=True, **common)
-        full, cut = np.load(root + "/full/params.npz"), np.load(root + "/cut/params.npz")
-        assert sorted(full) == sorted(cut) and any("gru" in name for name in full)
-        for name in full:
-            np.testing.assert_array_equal(full[name], cut[name], err_msg=name)
+    # the checkpoint holds the replay buffer, the envs in mid-episode and the agents' hidden states
+    root = sys.argv[1]
+    hp = dict(num_envs=4, num_steps=8, buffer_size=16, batch_size=4, learning_starts=0, hidden=16, train_steps=2,
+              target_update_interval=3, learner_devices=2, persistent_envs=True)
+    common = dict(scenario="predator_capture_prey", algo="vdn", total_steps=4 * 4 * 8, seeds=2, hp=hp,
+                  eval_episodes=0, checkpoint_every=1, progress=False, log=lambda *a: None, test_episodes=0)
+    train(out=root + "/full", **common)
+    with pytest.raises(KeyboardInterrupt):
+        train(out=root + "/cut", on_chunk=interrupt_at(2), **common)
+    train(out=root + "/cut", resume=True, **common)
+    full, cut = np.load(root + "/full/params.npz"), np.load(root + "/cut/params.npz")
+    assert sorted(full) == sorted(cut) and any("gru" in name for name in full)
+    for name in full:
+        np.testing.assert_array_equal(full[name], cut[name], err_msg=name)
     print("ok")
 """)
 

@@ -7,7 +7,7 @@ import dataclasses
 import pytest
 
 from marbler_jax_rl.driver import ALGORITHMS, build_config
-from marbler_jax_rl.recipes import PAPER, RECIPE_NAMES, RECIPES, Recipe, recipe, settings
+from marbler_jax_rl.recipes import PAPER, RECIPE_NAMES, RECIPES, Recipe, recipe, settings, settings_digest
 
 SCENARIOS = ("predator_capture_prey", "warehouse", "material_transport", "arctic_transport")
 
@@ -38,9 +38,11 @@ def test_recipes_keep_the_papers_algorithm_definitions():
     assert not RECIPES["qmix_ns"].config.shared and not RECIPES["qmix_ns"].config.agent_ids
     assert RECIPES["mappo"].config.critic_input == "global" and RECIPES["ippo"].config.critic_input == "local"
     value = [RECIPES[a].config for a in ("vdn", "qmix", "qmix_ns")]
-    for cfg in value:   # PQN-style: the buffer holds the update's own episodes, each used 4 times
-        assert cfg.buffer_size == cfg.num_envs == 256 and cfg.train_steps * cfg.batch_size == 4 * cfg.num_envs
+    for cfg in value:   # PQN-style: the buffer holds the update's own episodes, each used 8 times
+        assert cfg.buffer_size == cfg.num_envs == 256 and cfg.train_steps * cfg.batch_size == 8 * cfg.num_envs
         assert cfg.targets_per_update and cfg.lr_decay and cfg.td_lambda > 0
+        # the target network is synced once per update; epsilon reaches its floor after 1M env steps
+        assert cfg.target_update_interval == cfg.train_steps and cfg.eps_decay_steps == 1_000_000
 
 
 def test_paper_value_based_settings_are_epymarls_model_files():
@@ -90,3 +92,14 @@ def test_an_alias_gets_the_budget_of_its_scenario(tmp_path):
     assert main(["train", "--scenario", "pcp", "--algo", "ippo", "--total-steps", "4096", "--out", str(out),
           "--no-progress", "--hp", "num_envs=16", "--hp", "hidden=8", "--test-episodes", "2", "--eval-episodes", "0"]) == 0
     assert json.loads((out / "config.json").read_text())["scenario"] == "predator_capture_prey"
+
+
+def test_settings_digest_names_what_trains_and_ignores_learner_devices():
+    env, hp, steps = RECIPES["vdn"].settings("warehouse")
+    digest = settings_digest(env, hp, steps)
+    assert digest == RECIPES["vdn"].digest("warehouse") and len(digest) == 12
+    assert settings_digest(env, dict(hp, learner_devices=2), steps) == digest
+    assert settings_digest(env, dict(hp, eps_decay_steps=5_000_000), steps) != digest
+    assert settings_digest(env, hp, steps + 1) != digest
+    assert settings_digest({}, hp, steps) != digest
+    assert RECIPES["qmix"].digest("warehouse") != digest
