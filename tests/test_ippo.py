@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import jax
 import numpy as np
+import pytest
 
 import marbler_jax
 from marbler_jax_rl.ippo import IPPOConfig, make_train
@@ -42,15 +43,24 @@ def test_ippo_seeds_in_one_program_and_unshared_parameters():
     assert shared_params["params"]["actor"]["Dense_0"]["kernel"].shape == (env.obs_dim + env.num_agents, 32)
 
 
-def test_mappo_critic_sees_the_global_state_and_learns():
+def test_mappo_critic_sees_the_global_state():
+    from marbler_jax_rl import mappo
+
+    env = marbler_jax.make("simple_navigation")
+    cfg = mappo.MAPPOConfig(total_timesteps=16 * 8, num_envs=16, num_steps=8)
+    params = jax.jit(mappo.make_train(env, cfg).init)(jax.random.PRNGKey(0))["params"]
+    n, d = env.num_agents, env.obs_dim
+    assert params["params"]["critic"]["Dense_0"]["kernel"].shape[0] == n * d + n   # all obs + agent ID
+    assert params["params"]["actor"]["Dense_0"]["kernel"].shape[0] == d + n        # own obs + agent ID
+
+
+@pytest.mark.slow     # a learning check; IPPO's (the same PPO learner) stays in the default suite
+def test_mappo_learns_simple_navigation():
     from marbler_jax_rl import mappo
 
     env = marbler_jax.make("simple_navigation")
     cfg = mappo.MAPPOConfig(total_timesteps=150_000, num_envs=64, num_steps=64, lr=1e-3)
     params, _ = jax.block_until_ready(jax.jit(mappo.make_train(env, cfg))(jax.random.PRNGKey(0)))
-    n, d = env.num_agents, env.obs_dim
-    assert params["params"]["critic"]["Dense_0"]["kernel"].shape[0] == n * d + n   # all obs + agent ID
-    assert params["params"]["actor"]["Dense_0"]["kernel"].shape[0] == d + n        # own obs + agent ID
     _, random_traj = make_rollout(env, 256, env.max_steps * 2)(jax.random.PRNGKey(9))
     _, greedy_traj = make_rollout(env, 256, env.max_steps * 2, mappo.greedy_policy(env, cfg, params))(jax.random.PRNGKey(9))
     random_return, trained = episode_stats(random_traj)["return"], episode_stats(greedy_traj)
