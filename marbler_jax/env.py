@@ -29,6 +29,7 @@ transition (``info["returned_episode"]`` is True and the episode metrics are the
 """
 from __future__ import annotations
 
+import contextvars
 import functools
 import math
 from typing import Any
@@ -321,9 +322,17 @@ class MarblerEnv:
             )
         if not jnp.issubdtype(actions.dtype, jnp.integer):
             raise ValueError(f"{self.name}: actions must be integers in [0, {self.num_actions}), got dtype {actions.dtype}")
-        checkify.debug_check(jnp.all((actions >= 0) & (actions < self.num_actions)),
-                             f"{self.name}: actions must be in [0, {self.num_actions}), got {{actions}}", actions=actions)
+        if _TRACING_CHECKED.get():
+            checkify.check(jnp.all((actions >= 0) & (actions < self.num_actions)),
+                           f"{self.name}: actions must be in [0, {self.num_actions}), got {{actions}}", actions=actions)
         return jnp.clip(actions.astype(jnp.int32), 0, self.num_actions - 1)
+
+
+# Whether the program being traced runs under :func:`checked`. The check on traced actions is traced only
+# then: checkify numbers every check it traces from a global counter, and that number is part of the
+# program, so an unconditional check would make every retrace a new program that JAX's persistent
+# compilation cache cannot serve (and, under vmap, adds work that only checkify reads).
+_TRACING_CHECKED = contextvars.ContextVar("marbler_jax_tracing_checked", default=False)
 
 
 def checked(fn):
@@ -334,7 +343,14 @@ def checked(fn):
         step = marbler_jax.env.checked(jax.vmap(env.step))
         obs, state, rewards, done, info = step(keys, state, actions)
     """
-    program = jax.jit(checkify.checkify(fn, errors=checkify.user_checks))
+    def traced_checked(*args, **kwargs):
+        token = _TRACING_CHECKED.set(True)
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            _TRACING_CHECKED.reset(token)
+
+    program = jax.jit(checkify.checkify(traced_checked, errors=checkify.user_checks))
 
     def run(*args, **kwargs):
         error, out = program(*args, **kwargs)

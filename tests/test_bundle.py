@@ -142,6 +142,10 @@ def _rps_v2_python() -> Path:
 def _run_bundle(python, folder, trace, extra_env=None, prelude=None):
     env = dict(os.environ, MARBLER_JAX_HEADLESS="1", MARBLER_JAX_TRACE=str(trace), **(extra_env or {}))
     env.pop("PYTHONPATH", None)
+    # the rps venvs are installed without bytecode: the first run writes it for what it imports, into a cache
+    # outside the bundle folders (a bundle must stay flat), and later runs load it
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    env["PYTHONPYCACHEPREFIX"] = str(REPO / ".pytest_cache" / "pycache-bundles")
     command = [str(python), "main.py"] if prelude is None else [str(python), "-c", prelude]
     result = subprocess.run(command, cwd=folder, env=env, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stdout + result.stderr

@@ -60,3 +60,19 @@ def test_a_training_chunk_compiles_once_without_host_callbacks(algo):
         runner, _ = run(runner, 2)
     assert run._cache_size() == 1
     assert host_callbacks(run.lower(runner, 2)) == 0
+
+
+def test_a_retraced_program_is_the_same_program():
+    """Tracing the same step again gives the same StableHLO, so JAX's persistent compilation cache serves
+    a second run in one process (a training run after another, the benchmark's cells, the test suite)
+    instead of compiling it again. A check that bakes a per-trace counter into the program breaks this."""
+    env = marbler_jax.make("predator_capture_prey", control_period=15)
+    keys = jax.random.split(jax.random.PRNGKey(0), 4)
+    _, state = jax.vmap(env.reset)(keys)
+    actions = jnp.zeros((4, env.num_agents), jnp.int32)
+
+    def program():   # a fresh jit of a fresh function: traced anew, as a new training run's step is
+        return jax.jit(lambda k, s, a: jax.vmap(env.step)(k, s, a)).lower(keys, state, actions).as_text(
+            debug_info=False)
+
+    assert program() == program()
