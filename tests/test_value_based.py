@@ -107,7 +107,7 @@ def test_lambda_returns_match_the_recursive_definition_and_stop_at_episode_ends(
 
 @pytest.mark.parametrize("module, config, cell, reward_norm, persistent, last_action", [
     (vdn, vdn.VDNConfig, "mingru", "none", False, True),   # previous actions in the inputs of both paths
-    # GRU cells and standardised rewards are in no recipe: the same check, in the slow set
+    # cached targets with GRU cells and standardised rewards: in no recipe or paper preset, so in the slow set
     pytest.param(qmix, qmix.QMIXNSConfig, "gru", "standardise", False, False, marks=pytest.mark.slow),
     (qmix, qmix.QMIXNSConfig, "mingru", "none", True, False),     # sequences from stored hidden states
 ])
