@@ -78,15 +78,18 @@ def test_train_writes_a_complete_run_folder(tmp_path):
     assert np.isfinite(evaluation["trained"]["return"]) and np.isfinite(evaluation["random"]["return"])
     assert main(["train", "--hp", "no_such=1", "--total-steps", "100", "--out", str(out)]) == 2
 
+# two recurrent VDN seeds on Predator Capture Prey's recipe, a few updates
+TINY_PCP_VDN = ["train", "--scenario", "predator_capture_prey", "--algo", "vdn", "--total-steps", "1296", "--seeds", "2",
+                "--no-progress", "--hp", "num_envs=8", "--hp", "hidden=16", "--hp", "learning_starts=0",
+                "--hp", "buffer_size=32", "--hp", "batch_size=4", "--checkpoint-every", "1", "--test-episodes", "8",
+                "--eval-episodes", "8"]
+
 
 def test_train_vdn_then_evaluate_best_checkpoint(tmp_path, capsys):
     import json
 
     out = tmp_path / "vdn"
-    code = main(["train", "--scenario", "predator_capture_prey", "--algo", "vdn", "--total-steps", "1296",
-                 "--seeds", "2", "--out", str(out), "--no-progress", "--hp", "num_envs=8", "--hp", "hidden=16",
-                 "--hp", "learning_starts=0", "--hp", "buffer_size=32", "--hp", "batch_size=4",
-                 "--checkpoint-every", "1", "--test-episodes", "8", "--eval-episodes", "8"])
+    code = main(TINY_PCP_VDN + ["--out", str(out)])
     assert code == 0
     config = json.loads((out / "config.json").read_text())
     assert config["env"]["control_period"] == 15 and config["algorithm"]["train_steps"] == 32   # the recipe
@@ -108,6 +111,21 @@ def test_train_vdn_then_evaluate_best_checkpoint(tmp_path, capsys):
     assert json.loads((out / "eval_best.json").read_text()) == result          # the all-seeds evaluation is kept
     assert main(["evaluate", str(tmp_path / "missing")]) == 2
     assert "is not a run folder" in capsys.readouterr().err
+    # the recurrent greedy policy of the best checkpoint, two episodes side by side
+    gif = tmp_path / "vdn.gif"
+    assert main(["render", str(out), "--out", str(gif), "--checkpoint", "best", "--envs", "2", "--no-progress"]) == 0
+    import imageio.v2 as imageio
+
+    frames = imageio.mimread(gif)
+    assert 2 <= len(frames) <= 82 and frames[0].shape[1] > 1.5 * frames[0].shape[0]
+    assert main(["render", str(out), "--out", str(gif), "--seed-index", "5", "--no-progress"]) == 2
+    assert "out of range" in capsys.readouterr().err
+
+
+@pytest.mark.slow     # a diagnostic script of one scenario, on a run trained like the test above
+def test_pcp_failures_script_breaks_down_the_greedy_episodes(tmp_path):
+    out = tmp_path / "vdn"
+    assert main(TINY_PCP_VDN + ["--out", str(out)]) == 0
     # scripts/pcp_failures.py: every episode is a success, a violation or a timeout with prey left
     failures = load_script("pcp_failures")
     assert failures.main([str(out), "--episodes", "6", "--eps", "0.5", "--out", str(tmp_path / "f.json")]) == 0
@@ -126,15 +144,6 @@ def test_train_vdn_then_evaluate_best_checkpoint(tmp_path, capsys):
     assert np.all(played["range_idle_steps"] <= played["range_steps"])
     assert np.all(played["range_steps"] <= played["live_steps"])
     assert rows["eps=0"]["return_mean"] == pytest.approx(float(reference["reward"].mean()), rel=1e-5)
-    # the recurrent greedy policy of the best checkpoint, two episodes side by side
-    gif = tmp_path / "vdn.gif"
-    assert main(["render", str(out), "--out", str(gif), "--checkpoint", "best", "--envs", "2", "--no-progress"]) == 0
-    import imageio.v2 as imageio
-
-    frames = imageio.mimread(gif)
-    assert 2 <= len(frames) <= 82 and frames[0].shape[1] > 1.5 * frames[0].shape[0]
-    assert main(["render", str(out), "--out", str(gif), "--seed-index", "5", "--no-progress"]) == 2
-    assert "out of range" in capsys.readouterr().err
 
 
 def test_version_list_and_help_defaults(capsys):

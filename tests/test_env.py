@@ -176,15 +176,6 @@ def test_barrier_sweeps_and_relaxation_follow_the_config():
     assert cbf.make_barrier("si2").omega(20) == 1.7
 
 
-def test_scaling_to_twenty_robots():
-    env = marbler_jax.make("warehouse", n_agents=20, start_dist=0.3)
-    rollout = make_rollout(env, 64, 30)
-    state, (rewards, done, info) = rollout(jax.random.PRNGKey(0))
-    assert env.obs_dim == 3 * 6 and int(info["collisions"].sum()) == 0
-    with pytest.raises(ValueError, match=r"number of robots must be in \[1, 50\]"):
-        marbler_jax.make("warehouse", n_agents=60, start_dist=0.1, num_neighbors=5)
-
-
 def test_spawn_sampler_is_uniform_over_ordered_cells():
     from marbler_jax.scenarios.base import distinct_indices
 

@@ -31,6 +31,11 @@ def test_twenty_robots_run_without_collisions(name):
     assert stats["episodes"] >= 8 and stats["collision_rate"] == 0.0
 
 
+def test_observations_keep_their_size_as_the_team_grows():
+    # Warehouse observes a fixed number of neighbours (3 x 6 entries), whatever the team's size
+    assert {marbler_jax.make("warehouse", n_agents=n, start_dist=0.3).obs_dim for n in (6, 20, 50)} == {3 * 6}
+
+
 def test_fifty_robots_in_simulation():
     env = marbler_jax.make("warehouse", n_agents=50, start_dist=0.3, max_episode_steps=2, control_period=15)
     _, traj = make_rollout(env, 2, env.max_steps)(jax.random.PRNGKey(0))
