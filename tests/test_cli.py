@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import importlib.util
+import json
 from pathlib import Path
 
 import imageio.v2 as imageio
@@ -55,8 +56,6 @@ def test_bad_input_is_reported(capsys):
 
 
 def test_train_writes_a_complete_run_folder(tmp_path):
-    import json
-
     out = tmp_path / "run"
     args = ["train", "--scenario", "warehouse", "--total-steps", "2048", "--seeds", "2", "--out", str(out),
             "--hp", "num_envs=16", "--hp", "num_steps=16", "--hp", "hidden=32", "--test-episodes", "8",
@@ -86,8 +85,6 @@ TINY_PCP_VDN = ["train", "--scenario", "predator_capture_prey", "--algo", "vdn",
 
 
 def test_train_vdn_then_evaluate_best_checkpoint(tmp_path, capsys):
-    import json
-
     out = tmp_path / "vdn"
     code = main(TINY_PCP_VDN + ["--out", str(out)])
     assert code == 0
