@@ -77,6 +77,7 @@ def test_train_writes_a_complete_run_folder(tmp_path):
     assert np.isfinite(evaluation["trained"]["return"]) and np.isfinite(evaluation["random"]["return"])
     assert main(["train", "--hp", "no_such=1", "--total-steps", "100", "--out", str(out)]) == 2
 
+
 # two recurrent VDN seeds on Predator Capture Prey's recipe, a few updates
 TINY_PCP_VDN = ["train", "--scenario", "predator_capture_prey", "--algo", "vdn", "--total-steps", "1296", "--seeds", "2",
                 "--no-progress", "--hp", "num_envs=8", "--hp", "hidden=16", "--hp", "learning_starts=0",
@@ -111,8 +112,6 @@ def test_train_vdn_then_evaluate_best_checkpoint(tmp_path, capsys):
     # the recurrent greedy policy of the best checkpoint, two episodes side by side
     gif = tmp_path / "vdn.gif"
     assert main(["render", str(out), "--out", str(gif), "--checkpoint", "best", "--envs", "2", "--no-progress"]) == 0
-    import imageio.v2 as imageio
-
     frames = imageio.mimread(gif)
     assert 2 <= len(frames) <= 82 and frames[0].shape[1] > 1.5 * frames[0].shape[0]
     assert main(["render", str(out), "--out", str(gif), "--seed-index", "5", "--no-progress"]) == 2
