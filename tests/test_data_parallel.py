@@ -1,5 +1,5 @@
 """Data-parallel value-based learning (``learner_devices``): the same gradient steps as one device
-(targets per batch, and targets once per update with the buffer's rows split over the devices), and an
+(targets once per update with the buffer's rows split over the devices, and targets per batch), and an
 interrupted VDN run (GRU agents, two seeds, its replay buffer, envs and hidden states in the checkpoint)
 resumes bit-exactly. JAX picks its CPU device count when it first runs, so
 the two-device checks run in a fresh interpreter."""
@@ -31,14 +31,16 @@ assert len(jax.devices()) == 2
 MATCH_ONE_DEVICE = PRELUDE + textwrap.dedent("""
     from marbler_jax_rl import qmix
 
-    # 1 vs 2 devices: the same updates up to float rounding (QMIX: the mixer's gradients are split too)
+    # 1 vs 2 devices: the same updates up to float rounding. "per_update" (the recipes' path): QMIX, whose
+    # mixer's gradients are split too, with targets once per update (minimal GRU) and the buffer's rows
+    # split over the devices; "per_batch": QMIX_NS (a network per robot) with targets per sampled batch
     env = marbler_jax.make("predator_capture_prey", control_period=15)
     hp = dict(total_timesteps=3 * 4 * 8, num_envs=4, num_steps=8, buffer_size=16, batch_size=4, learning_starts=0,
               hidden=16, train_steps=3, target_update_interval=2, mixer_embed=8, hypernet_hidden=8)
-    # second case: targets once per update (QMIX_NS, minimal GRU), the buffer's rows split over the devices
     per_update = dict(hp, buffer_size=12, target_update_interval=3, double_q=False, td_lambda=0.65, cell="mingru")
-    for config, hp in ((qmix.QMIXConfig, hp), (qmix.QMIXNSConfig, per_update)):
-        assert config(**hp).targets_per_update == (config is qmix.QMIXNSConfig)
+    cases = {"per_update": (qmix.QMIXConfig, per_update, True), "per_batch": (qmix.QMIXNSConfig, hp, False)}
+    for config, hp, targets_per_update in [cases[name] for name in sys.argv[1:]]:
+        assert config(**hp).targets_per_update == targets_per_update
         out = {}
         for devices in (1, 2):
             trainer = qmix.make_train(env, config(learner_devices=devices, **hp))
@@ -81,9 +83,17 @@ def run_with_two_devices(script: str, *args: str) -> None:
 
 
 def test_two_devices_match_one():
-    run_with_two_devices(MATCH_ONE_DEVICE)
+    run_with_two_devices(MATCH_ONE_DEVICE, "per_update")
 
 
+@pytest.mark.slow     # the recipes compute targets once per update, the case above
+def test_two_devices_match_one_with_targets_per_batch():
+    run_with_two_devices(MATCH_ONE_DEVICE, "per_batch")
+
+
+# slow: its two halves are in the default suite (test_training_driver's interrupted run resumes bit-exactly,
+# test_two_devices_match_one checks the two-device updates)
+@pytest.mark.slow
 def test_two_devices_resume_bit_exactly(tmp_path):
     run_with_two_devices(RESUME, str(tmp_path))
     # this process has one device: the two-device run's checkpoints still restore (no device layout saved)

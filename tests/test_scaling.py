@@ -36,6 +36,7 @@ def test_observations_keep_their_size_as_the_team_grows():
     assert {marbler_jax.make("warehouse", n_agents=n, start_dist=0.3).obs_dim for n in (6, 20, 50)} == {3 * 6}
 
 
+@pytest.mark.slow     # the twenty-robot tests take the same path in the default suite
 def test_fifty_robots_in_simulation():
     env = marbler_jax.make("warehouse", n_agents=50, start_dist=0.3, max_episode_steps=2, control_period=15)
     _, traj = make_rollout(env, 2, env.max_steps)(jax.random.PRNGKey(0))
