@@ -107,9 +107,10 @@ def test_lambda_returns_match_the_recursive_definition_and_stop_at_episode_ends(
 
 @pytest.mark.parametrize("module, config, cell, reward_norm, persistent, last_action", [
     (vdn, vdn.VDNConfig, "mingru", "none", False, True),   # previous actions in the inputs of both paths
-    # cached targets with GRU cells and standardised rewards: in no recipe or paper preset, so in the slow set
+    # in no recipe or paper preset, so in the slow set: GRU cells and standardised rewards; persistent envs
+    # (sequences from stored hidden states)
     pytest.param(qmix, qmix.QMIXNSConfig, "gru", "standardise", False, False, marks=pytest.mark.slow),
-    (qmix, qmix.QMIXNSConfig, "mingru", "none", True, False),     # sequences from stored hidden states
+    pytest.param(qmix, qmix.QMIXNSConfig, "mingru", "none", True, False, marks=pytest.mark.slow),
 ])
 def test_targets_once_per_update_match_targets_per_batch(module, config, cell, reward_norm, persistent, last_action):
     """``cache_targets``: the TD(lambda) targets of every buffered sequence computed once per update give
