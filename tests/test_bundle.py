@@ -57,7 +57,8 @@ def bundles(tmp_path_factory, ippo_simple_nav_run):
                     str(root / "simple_navigation"), "--checkpoint", "final", "--episodes", "2"]) == 0
         for name, (module, cfg, algo, overrides) in UNTRAINED.items():
             env = marbler_jax.make(name, **overrides, **SHORT)
-            params = jax.jit(module.make_train(env, cfg).init)(jax.random.PRNGKey(1))["params"]
+            init = module.make_train(env, cfg).init     # jitted for the parameters alone: the rest is pruned
+            params = jax.jit(lambda key: init(key)["params"])(jax.random.PRNGKey(1))
             export_params(algo, cfg, params, env, root / f"{name}-policy")
             write_bundle(env, root / f"{name}-policy", root / name, algo, episodes=1, seed=3)
 

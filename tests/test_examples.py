@@ -77,7 +77,8 @@ def test_coverage_trains_from_the_cli_and_exports_a_jax_free_bundle(tmp_path):
     env, _ = load_run(run)
     assert env.name == "coverage"
     cfg = ippo.IPPOConfig(hidden=16)
-    export_params("ippo", cfg, ippo.make_train(env, cfg).init(jax.random.PRNGKey(0))["params"], env, tmp_path / "p")
+    init = ippo.make_train(env, cfg).init
+    export_params("ippo", cfg, jax.jit(lambda key: init(key)["params"])(jax.random.PRNGKey(0)), env, tmp_path / "p")
     write_bundle(env, tmp_path / "p", tmp_path / "bundle", "ippo", episodes=1)
     assert "coverage.py" in check_bundle_folder(tmp_path / "bundle")
     script = ("import sys; sys.modules.update(jax=None, flax=None); sys.path.insert(0, '.'); import main; "

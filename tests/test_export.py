@@ -40,7 +40,8 @@ ALGO = {"vdn-gru-shared": "vdn", "qmix-ff-shared": "qmix", "qmix_ns-gru": "qmix_
 
 def _params(module, cfg, env, seed=0):
     """Initial parameters, every one perturbed (LayerNorm's scale 1 / bias 0 would hide a misuse)."""
-    params = module.make_train(env, cfg).init(jax.random.PRNGKey(seed))["params"]
+    init = module.make_train(env, cfg).init     # jitted for the parameters alone: the rest is pruned
+    params = jax.jit(lambda key: init(key)["params"])(jax.random.PRNGKey(seed))
     leaves, tree = jax.tree_util.tree_flatten(params)
     keys = jax.random.split(jax.random.PRNGKey(seed + 100), len(leaves))
     return jax.tree_util.tree_unflatten(

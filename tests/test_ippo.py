@@ -38,7 +38,7 @@ def test_ippo_seeds_in_one_program_and_unshared_parameters():
     assert metrics["loss"].shape == (3, cfg.num_updates)
     shared_cfg = IPPOConfig(total_timesteps=16 * 8, num_envs=16, num_steps=8, num_minibatches=2, update_epochs=1,
                             hidden=32)
-    shared_params, _ = jax.block_until_ready(jax.jit(make_train(env, shared_cfg))(jax.random.PRNGKey(2)))
+    shared_params = jax.eval_shape(make_train(env, shared_cfg).init, jax.random.PRNGKey(2))["params"]   # shapes only
     # one set for all agents, input = obs + agent-ID one-hot
     assert shared_params["params"]["actor"]["Dense_0"]["kernel"].shape == (env.obs_dim + env.num_agents, 32)
 
@@ -48,7 +48,7 @@ def test_mappo_critic_sees_the_global_state():
 
     env = marbler_jax.make("simple_navigation")
     cfg = mappo.MAPPOConfig(total_timesteps=16 * 8, num_envs=16, num_steps=8)
-    params = jax.jit(mappo.make_train(env, cfg).init)(jax.random.PRNGKey(0))["params"]
+    params = jax.eval_shape(mappo.make_train(env, cfg).init, jax.random.PRNGKey(0))["params"]   # shapes only
     n, d = env.num_agents, env.obs_dim
     assert params["params"]["critic"]["Dense_0"]["kernel"].shape[0] == n * d + n   # all obs + agent ID
     assert params["params"]["actor"]["Dense_0"]["kernel"].shape[0] == d + n        # own obs + agent ID

@@ -289,22 +289,24 @@ def test_last_action_inputs_agree_between_acting_learning_and_the_greedy_policy(
 def test_shared_and_per_agent_parameter_shapes():
     env = marbler_jax.make("material_transport")
     small = dict(total_timesteps=4 * 71, num_envs=4, buffer_size=8, batch_size=2, learning_starts=0, hidden=16)
-    shared = jax.jit(qmix.make_train(env, qmix.QMIXConfig(**small)).init)(jax.random.PRNGKey(0))["params"]
-    ns = jax.jit(qmix.make_train(env, qmix.QMIXNSConfig(**small)).init)(jax.random.PRNGKey(0))["params"]
+    key = jax.random.PRNGKey(0)
+    shared = jax.eval_shape(qmix.make_train(env, qmix.QMIXConfig(**small)).init, key)["params"]   # shapes only
+    ns = jax.eval_shape(qmix.make_train(env, qmix.QMIXNSConfig(**small)).init, key)["params"]
     # shared: one network, input = obs + agent-ID one-hot; QMIX_NS: one network per agent, no IDs
     assert shared["agent"]["params"]["fc1"]["kernel"].shape == (env.obs_dim + env.num_agents, 16)
     assert ns["agent"]["params"]["fc1"]["kernel"].shape == (env.num_agents, env.obs_dim, 16)
     assert ns["agent"]["params"]["gru"]["hr"]["kernel"].shape == (env.num_agents, 16, 16)
     assert shared["mixer"]["params"]["hyper_w1_0"]["kernel"].shape == (env.num_agents * env.obs_dim, 64)
     # last_action: the previous action's one-hot between the observation and the agent ID
-    last = jax.jit(qmix.make_train(env, qmix.QMIXConfig(**small, last_action=True)).init)(jax.random.PRNGKey(0))["params"]
+    last = jax.eval_shape(qmix.make_train(env, qmix.QMIXConfig(**small, last_action=True)).init, key)["params"]
     assert last["agent"]["params"]["fc1"]["kernel"].shape == (env.obs_dim + env.num_actions + env.num_agents, 16)
 
 
 def test_recurrent_greedy_policy_resets_its_memory_at_episode_starts():
     env = marbler_jax.make("predator_capture_prey")
     cfg = vdn.VDNConfig(hidden=16)
-    params = vdn.make_train(env, cfg).init(jax.random.PRNGKey(0))["params"]
+    init = vdn.make_train(env, cfg).init
+    params = jax.jit(lambda key: init(key)["params"])(jax.random.PRNGKey(0))
     policy = vdn.greedy_policy(env, cfg, params)
     obs = jax.random.uniform(jax.random.PRNGKey(1), (3, env.num_agents, env.obs_dim))
     fresh = policy.initial_carry((3,))

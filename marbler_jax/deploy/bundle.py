@@ -37,7 +37,7 @@ def initial_states(env, episodes: int, seed: int = 0):
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     keys = jax.random.split(jax.random.PRNGKey(seed), episodes)
-    _, states = jax.vmap(env.reset)(keys)
+    _, states = jax.jit(jax.vmap(env.reset))(keys)      # one program, not one dispatch per op
     fields = {f.name: np.asarray(getattr(states.scenario, f.name)) for f in dataclasses.fields(states.scenario)}
     return np.asarray(states.poses, np.float64), fields, type(states.scenario)
 
