@@ -30,3 +30,12 @@ def tensorboard_steps(folder) -> dict[str, list[int]]:
             for value in event.summary.value:
                 steps.setdefault(value.tag, []).append(event.step)
     return steps
+
+
+def initial_params(module, env, cfg, seed: int = 0):
+    """The untrained parameters ``module.make_train(env, cfg).init`` draws from ``PRNGKey(seed)``, from a
+    program that computes nothing else (the envs, buffers and optimiser state of the full init are pruned)."""
+    import jax
+
+    init = module.make_train(env, cfg).init
+    return jax.jit(lambda key: init(key)["params"])(jax.random.PRNGKey(seed))

@@ -26,6 +26,7 @@ from marbler_jax.deploy.bundle import write_bundle
 from marbler_jax.deploy.flatten import check_bundle_folder, flatten_module
 from marbler_jax.deploy.replay import replay_trace
 from tests.conftest import build_once
+from tests.helpers import initial_params
 
 REPO = Path(__file__).resolve().parents[1]
 RPS_VENV = REPO / ".rps-venv"
@@ -57,8 +58,7 @@ def bundles(tmp_path_factory, ippo_simple_nav_run):
                     str(root / "simple_navigation"), "--checkpoint", "final", "--episodes", "2"]) == 0
         for name, (module, cfg, algo, overrides) in UNTRAINED.items():
             env = marbler_jax.make(name, **overrides, **SHORT)
-            init = module.make_train(env, cfg).init     # jitted for the parameters alone: the rest is pruned
-            params = jax.jit(lambda key: init(key)["params"])(jax.random.PRNGKey(1))
+            params = initial_params(module, env, cfg, seed=1)
             export_params(algo, cfg, params, env, root / f"{name}-policy")
             write_bundle(env, root / f"{name}-policy", root / name, algo, episodes=1, seed=3)
 

@@ -20,6 +20,7 @@ from marbler_jax_rl.cli import main
 from marbler_jax.deploy.bundle import write_bundle
 from marbler_jax.deploy.flatten import check_bundle_folder
 from marbler_jax.rollout import episode_stats, make_rollout
+from tests.helpers import initial_params
 
 SPEC = f"{Path(__file__).resolve().parents[1] / 'examples' / 'coverage.py'}:Coverage"
 
@@ -77,8 +78,7 @@ def test_coverage_trains_from_the_cli_and_exports_a_jax_free_bundle(tmp_path):
     env, _ = load_run(run)
     assert env.name == "coverage"
     cfg = ippo.IPPOConfig(hidden=16)
-    init = ippo.make_train(env, cfg).init
-    export_params("ippo", cfg, jax.jit(lambda key: init(key)["params"])(jax.random.PRNGKey(0)), env, tmp_path / "p")
+    export_params("ippo", cfg, initial_params(ippo, env, cfg), env, tmp_path / "p")
     write_bundle(env, tmp_path / "p", tmp_path / "bundle", "ippo", episodes=1)
     assert "coverage.py" in check_bundle_folder(tmp_path / "bundle")
     script = ("import sys; sys.modules.update(jax=None, flax=None); sys.path.insert(0, '.'); import main; "

@@ -16,6 +16,7 @@ from marbler_jax_rl.export import export_params
 from marbler_jax_rl.networks import apply_agents
 from marbler_jax_rl.q_learning import agent_inputs, agent_module
 from marbler_jax.numpy_policy import NumpyPolicy, load_policy
+from tests.helpers import initial_params
 
 CASES = {
     "vdn-gru-shared": (vdn, vdn.VDNConfig(hidden=32)),
@@ -40,8 +41,7 @@ ALGO = {"vdn-gru-shared": "vdn", "qmix-ff-shared": "qmix", "qmix_ns-gru": "qmix_
 
 def _params(module, cfg, env, seed=0):
     """Initial parameters, every one perturbed (LayerNorm's scale 1 / bias 0 would hide a misuse)."""
-    init = module.make_train(env, cfg).init     # jitted for the parameters alone: the rest is pruned
-    params = jax.jit(lambda key: init(key)["params"])(jax.random.PRNGKey(seed))
+    params = initial_params(module, env, cfg, seed)
     leaves, tree = jax.tree_util.tree_flatten(params)
     keys = jax.random.split(jax.random.PRNGKey(seed + 100), len(leaves))
     return jax.tree_util.tree_unflatten(

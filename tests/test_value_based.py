@@ -12,6 +12,7 @@ from marbler_jax_rl import buffer as episode_buffer
 from marbler_jax_rl import qmix, vdn
 from marbler_jax_rl.recipes import PAPER, RECIPES
 from marbler_jax.rollout import episode_stats, make_rollout
+from tests.helpers import initial_params
 
 
 def test_buffer_is_circular_and_samples_only_written_slots():
@@ -305,8 +306,7 @@ def test_shared_and_per_agent_parameter_shapes():
 def test_recurrent_greedy_policy_resets_its_memory_at_episode_starts():
     env = marbler_jax.make("predator_capture_prey")
     cfg = vdn.VDNConfig(hidden=16)
-    init = vdn.make_train(env, cfg).init
-    params = jax.jit(lambda key: init(key)["params"])(jax.random.PRNGKey(0))
+    params = initial_params(vdn, env, cfg)
     policy = vdn.greedy_policy(env, cfg, params)
     obs = jax.random.uniform(jax.random.PRNGKey(1), (3, env.num_agents, env.obs_dim))
     fresh = policy.initial_carry((3,))
