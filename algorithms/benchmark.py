@@ -11,7 +11,8 @@ results file in marl-eval's layout::
         "step_<i>": {"step_count": env_steps, metric: [per-episode values]},
         "absolute_metrics": {metric: [per-episode values], "best_test_return": [x],
                              "env_steps": [per seed], "train_seconds": [updates' time, all seeds],
-                             "wall_seconds": [the cell's wall time, summed over invocations]}}}}}}
+                             "wall_seconds": [the cell's wall time, summed over invocations],
+                             "device": [the accelerator that trained it, e.g. "cpu" or "NVIDIA H100 80GB HBM3"]}}}}}}
 
 with the metrics of :data:`marbler_jax.rollout.EPISODE_METRICS` and the scenario's own (``prey_left``,
 ``material_left``, ...). The file is rewritten atomically after every cell. A rerun skips the cells the
@@ -203,6 +204,7 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
         seconds = clock.save()
         for entry in runs.values():
             entry[ABSOLUTE]["wall_seconds"] = [round(seconds, 1)]
+            entry[ABSOLUTE]["device"] = [jax.devices()[0].device_kind]
         results = add_cell(path, scenario, algo, runs)
         spent_steps += steps * seeds
         spent_seconds += seconds

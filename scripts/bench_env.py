@@ -1,8 +1,10 @@
 """Benchmark the batched envs: env-steps/s via ``jit(scan(vmap(step)))`` with random actions.
 
     python scripts/bench_env.py --out bench_out/env.json [--quick]
+    python scripts/bench_env.py --scenarios predator_capture_prey --batches 4096 65536 --settings safe:15 safe:1
 
-For every scenario, batch in {1, 256, 4096}, barrier off / safe and control period 15 / 1:
+For every scenario, batch in {1, 256, 4096} (``--batches``), barrier off / safe and control period 15 / 1
+(``--settings barrier:period ...``):
 env-steps/s, agent-steps/s and compile time (measured separately). Also the cost per robot-tick of
 Warehouse with 4 and 20 robots (safe barrier, control period 15, batch 4096). Writes JSON and a
 Markdown table next to it.
@@ -41,15 +43,30 @@ def measure(env, batch: int, steps: int, repeats: int = 3):
     return batch * steps / best, compile_s
 
 
+def parse_setting(parser, text: str) -> tuple[str, int]:
+    """``"safe:15"`` -> ``("safe", 15)``; a malformed pair is a usage error naming it."""
+    barrier, _, period = text.partition(":")
+    if not barrier or not period.isdigit() or int(period) < 1:
+        parser.error(f"--settings takes BARRIER:PERIOD pairs such as safe:15 or none:1, got {text!r}")
+    return barrier, int(period)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", default="bench_out/env.json")
     parser.add_argument("--quick", action="store_true", help="tiny grid (smoke test)")
     parser.add_argument("--scenarios", default=",".join(marbler_jax.registered()))
+    parser.add_argument("--batches", type=int, nargs="+", help="env batch sizes (default 1 256 4096)")
+    parser.add_argument("--settings", nargs="+", metavar="BARRIER:PERIOD",
+                        help="barrier and control period pairs (default safe:15 none:15 safe:1 none:1)")
     args = parser.parse_args(argv)
-    batches = [1, 64] if args.quick else [1, 256, 4096]
+    batches = args.batches or ([1, 64] if args.quick else [1, 256, 4096])
+    if any(b < 1 for b in batches):
+        parser.error(f"--batches must be positive integers, got {batches}")
     settings = [("safe", 15), ("none", 15), ("safe", 1), ("none", 1)]
-    if args.quick:
+    if args.settings:
+        settings = [parse_setting(parser, text) for text in args.settings]
+    elif args.quick:
         settings = settings[:1]
     rows = []
     names = args.scenarios.split(",")

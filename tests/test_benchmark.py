@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 
+import jax
 import numpy as np
 import pytest
 
@@ -74,6 +75,15 @@ def test_best_seed_is_the_best_test_return_and_reached_compares_with_the_paper()
     assert report.reached("steps", 50.0, 55.0) and not report.reached("prey_left", 0.1, 0.0)
     assert report.reached("collisions", 1.0, None) and not report.reached("out_of_bounds", 1.5, None)
     assert report.reached("reward", 1.0, None) is None
+
+
+def test_training_time_is_summed_per_device():
+    gpu, cpu = _runs([[1.0]]), _runs([[1.0]])
+    gpu["run_0"][ABSOLUTE].update(train_seconds=[1800.0], device=["NVIDIA H100 80GB HBM3"])
+    cpu["run_0"][ABSOLUTE].update(train_seconds=[3600.0], device=["cpu"])
+    tasks = {"a": {"vdn": cpu, "qmix": _runs([[1.0]])}, "b": {"vdn": dict(cpu), "mappo": gpu}}
+    assert report.training_time(tasks) == ("2.00 h on cpu (2 cells), 0.50 h on NVIDIA H100 80GB HBM3 (1 cell), "
+                                           "0.00 h on device not recorded (1 cell)")
 
 
 def test_report_renders_tables_curves_and_improvement(tmp_path):
@@ -148,6 +158,7 @@ def test_tiny_benchmark_writes_resumes_and_reports(tmp_path):
     invocations = json.loads((out / "runs" / "simple_navigation" / "mappo" / benchmark.WALL_FILE).read_text())
     assert len(invocations["invocations"]) == 2 and min(invocations["invocations"]) > 0
     assert runs["run_0"][ABSOLUTE]["wall_seconds"] == [round(sum(invocations["invocations"]), 1)]
+    assert runs["run_0"][ABSOLUTE]["device"] == [jax.devices()[0].device_kind]     # "cpu" here
     written = report.write_report(out, reps=20)
     assert "| simple_navigation | mappo† | 2 |" in written[0].read_text()     # not the recipe's settings
     logs.clear()
