@@ -44,8 +44,9 @@ def replay_trace(bundle, trace, physics: str = "deployed") -> list[dict]:
     poses0 = np.load(bundle / "initial_poses.npy", allow_pickle=False)
     fields = {name: np.load(bundle / f"initial_{name}.npy", allow_pickle=False) for name in config["state_fields"]}
     policy = load_policy(bundle)
-    _, template = env.reset(jax.random.PRNGKey(0))
-    step = jax.jit(env.step_env)
+    # one compiled program each (the many small ops of an eager reset would each compile their own)
+    _, template = jax.jit(env.reset)(jax.random.PRNGKey(0))
+    step, reset_obs = jax.jit(env.step_env), jax.jit(env.reset_obs)
     results = []
     for k in range(len(poses0)):
         path = trace / f"episode_{k}.npz"
@@ -57,7 +58,7 @@ def replay_trace(bundle, trace, physics: str = "deployed") -> list[dict]:
                          episode_return=jnp.zeros((), dtype), collided=jnp.bool_(False),
                          out_of_bounds=jnp.bool_(False), cbf_multipliers=env.initial_multipliers(dtype))
         free, forced = start, start
-        obs = env.reset_obs(start)
+        obs = reset_obs(start)
         hidden = policy.initial_hidden()
         pose_dev = step_dev = reward_dev = 0.0
         agree, done = True, False
