@@ -23,7 +23,8 @@ from marbler_jax_rl import ippo, mappo, qmix, vdn
 from marbler_jax_rl.export import export_params
 from marbler_jax_rl.cli import main as cli
 from marbler_jax.deploy.bundle import write_bundle
-from marbler_jax.deploy.flatten import check_bundle_folder, flatten_module
+from marbler_jax.deploy import flatten
+from marbler_jax.deploy.flatten import CORE_MODULES, check_bundle_folder, flatten_module, flatten_modules
 from marbler_jax.deploy.replay import replay_trace
 from tests.conftest import build_once
 from tests.helpers import initial_params
@@ -105,6 +106,34 @@ def test_flattening_refuses_jax_in_the_shared_step_logic(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(tmp_path))
     with pytest.raises(ValueError, match="observe"):
         flatten_module("my_scenario", {"my_scenario": "my_scenario"})
+
+
+def _two_passes(names):
+    """The reference: every module flattened once to learn what it drops, then again without those imports."""
+    dropped = {module: flatten_module(module, names)[1] for module in names}
+    return {names[module]: flatten_module(module, names, dropped)[0] for module in names}
+
+
+def test_one_pass_in_import_order_flattens_like_two_passes(tmp_path, monkeypatch):
+    names = dict(CORE_MODULES, **{"marbler_jax.scenarios.predator_capture_prey": "predator_capture_prey"})
+    reference = _two_passes(names)
+    assert flatten_modules(names) == reference
+    # the scenario imports a JAX-only sampler from the base module, which its flat imports must lose
+    assert reference["predator_capture_prey"] != flatten_module("marbler_jax.scenarios.predator_capture_prey", names)[0]
+    # package modules that import from each other (a cycle) are flattened in two passes
+    package = tmp_path / "cycpkg"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    (package / "a.py").write_text("import jax\nfrom cycpkg.b import g, spawn_band\n\ndef f():\n    return g()\n\n"
+                                  "def reset(key):\n    return jax.random.normal(key)\n")
+    (package / "b.py").write_text("import jax\nfrom cycpkg.a import f, reset\n\ndef g():\n    return 1\n\n"
+                                  "def spawn_band(key):\n    return jax.random.normal(key)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(flatten, "PACKAGE", "cycpkg")
+    cycle = {"cycpkg.a": "cyc_a", "cycpkg.b": "cyc_b"}
+    flat = flatten_modules(cycle)
+    assert flat == _two_passes(cycle)
+    assert "from cyc_b import g\n" in flat["cyc_a"] and "from cyc_a import f\n" in flat["cyc_b"]
 
 
 def _rps_python() -> Path:

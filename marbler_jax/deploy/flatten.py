@@ -155,17 +155,55 @@ class _Flattener(ast.NodeTransformer):
 def flatten_modules(names: dict[str, str]) -> dict[str, str]:
     """Flat, JAX-free sources ``{flat name: source}`` of the modules ``names`` maps to flat names.
 
-    Two passes: the first learns which JAX-only functions each module loses, the second also drops
-    their imports from the other modules."""
-    dropped = {module: flatten_module(module, names)[1] for module in names}
-    return {names[module]: flatten_module(module, names, dropped)[0] for module in names}
+    A module that imports names from another bundled module is flattened after it, so that the
+    JAX-only functions the other module lost are dropped from its imports too (one pass per module;
+    two passes where the imports form a cycle)."""
+    trees = {module: _parse(module) for module in names}
+    order = _imported_first(trees)
+    if order is None:
+        dropped = {module: flatten_module(module, names, tree=trees[module])[1] for module in names}
+        return {names[module]: flatten_module(module, names, dropped)[0] for module in names}
+    sources, dropped = {}, {}
+    for module in order:
+        sources[module], dropped[module] = flatten_module(module, names, dropped, tree=trees[module])
+    return {names[module]: sources[module] for module in names}
 
 
-def flatten_module(module: str, names: dict[str, str], dropped_elsewhere: dict | None = None) -> tuple[str, list[str]]:
-    """Flat, JAX-free source of module ``module``; ``names`` maps bundled modules to their flat names,
-    ``dropped_elsewhere`` their dropped functions (not importable). Returns ``(source, dropped names)``."""
+def _parse(module: str) -> ast.Module:
     path = module_path(module)
-    tree = ast.parse(path.read_text(), filename=str(path))
+    return ast.parse(path.read_text(), filename=str(path))
+
+
+def _imported_first(trees: dict[str, ast.Module]) -> list[str] | None:
+    """The modules of ``trees`` ordered so that each comes after the bundled modules it imports names
+    from (``from marbler_jax.x import f``); ``None`` if those imports form a cycle."""
+    needs = {module: {node.module for node in ast.walk(tree)
+                      if isinstance(node, ast.ImportFrom) and node.module in trees and node.module != module}
+             for module, tree in trees.items()}
+    order, state = [], {}
+
+    def visit(module) -> bool:
+        if state.get(module) == "done":
+            return True
+        if state.get(module) == "open":
+            return False
+        state[module] = "open"
+        if not all(visit(other) for other in sorted(needs[module])):
+            return False
+        state[module] = "done"
+        order.append(module)
+        return True
+
+    return order if all(visit(module) for module in trees) else None
+
+
+def flatten_module(module: str, names: dict[str, str], dropped_elsewhere: dict | None = None,
+                   tree: ast.Module | None = None) -> tuple[str, list[str]]:
+    """Flat, JAX-free source of module ``module``; ``names`` maps bundled modules to their flat names,
+    ``dropped_elsewhere`` their dropped functions (not importable); ``tree``: the module's parsed
+    source (rewritten in place), parsed here if ``None``. Returns ``(source, dropped names)``."""
+    path = module_path(module)
+    tree = _parse(module) if tree is None else tree
     flattener = _Flattener(names, f"{module} ({path.name})", _jax_imports(tree.body), dropped_elsewhere or {})
     flattener.needs_frozen_state = False
     tree = flattener.visit(tree)
