@@ -7,7 +7,7 @@ For every scenario, batch in {1, 256, 4096} (``--batches``), barrier off / safe 
 (``--settings barrier:period ...``):
 env-steps/s, agent-steps/s and compile time (measured separately). Also the cost per robot-tick of
 Warehouse with 4 and 20 robots (safe barrier, control period 15, batch 4096). Writes JSON and a
-Markdown table next to it.
+Markdown table next to it after every measurement, so an interrupted run keeps what it measured.
 """
 from __future__ import annotations
 
@@ -68,7 +68,17 @@ def main(argv=None):
         settings = [parse_setting(parser, text) for text in args.settings]
     elif args.quick:
         settings = settings[:1]
-    rows = []
+    result = dict(date=str(date.today()), jax=jax.__version__, backend=jax.default_backend(),
+                  device=jax.devices()[0].device_kind,
+                  machine=f"{platform.machine()}, {os.cpu_count()} CPU cores, {jax.devices()[0].device_kind}",
+                  rows=[], scaling=[])
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+
+    def save():      # after every measurement: an interrupted run keeps what it measured
+        atomic_write(out, json.dumps(result, indent=2))
+        atomic_write(out.with_suffix(".md"), markdown(result))
+
     names = args.scenarios.split(",")
     bar = tqdm(total=len(names) * len(settings) * len(batches), desc="env benchmarks", unit="config")
     for name in names:
@@ -77,39 +87,39 @@ def main(argv=None):
             for batch in batches:
                 steps = 8 if args.quick else (20 if batch >= 256 else 50)
                 sps, compile_s = measure(env, batch, steps, repeats=1 if args.quick else 3)
-                rows.append(dict(scenario=name, barrier=barrier, control_period=period, batch=batch,
-                                 agents=env.num_agents, env_steps_per_s=sps, agent_steps_per_s=sps * env.num_agents,
-                                 compile_s=compile_s))
+                result["rows"].append(dict(scenario=name, barrier=barrier, control_period=period, batch=batch,
+                                           agents=env.num_agents, env_steps_per_s=sps,
+                                           agent_steps_per_s=sps * env.num_agents, compile_s=compile_s))
+                save()
                 bar.update()
                 tqdm.write(f"{name:22s} cbf={barrier:4s} period={period:2d} batch={batch:5d} "
                            f"{sps:12,.0f} env-steps/s (compile {compile_s:.1f} s)")
     bar.close()
-    scaling = []
     for n in ([4] if args.quick else [4, 20]):
         env = marbler_jax.make("warehouse", n_agents=n, start_dist=0.3, control_period=15)
         batch = 64 if args.quick else 4096
         sps, _ = measure(env, batch, 8 if args.quick else 10, repeats=1 if args.quick else 3)
         per_tick = 1e9 / (sps * n * env.config.update_frequency)
-        scaling.append(dict(scenario="warehouse", agents=n, batch=batch, env_steps_per_s=sps, ns_per_robot_tick=per_tick))
+        result["scaling"].append(dict(scenario="warehouse", agents=n, batch=batch, env_steps_per_s=sps,
+                                      ns_per_robot_tick=per_tick))
+        save()
         print(f"scaling warehouse N={n:2d}: {sps:12,.0f} env-steps/s, {per_tick:.2f} ns per robot-tick", flush=True)
-    result = dict(date=str(date.today()), jax=jax.__version__, backend=jax.default_backend(),
-                  machine=f"{platform.machine()}, {os.cpu_count()} CPU cores, {jax.default_backend()}",
-                  rows=rows, scaling=scaling)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(out, json.dumps(result, indent=2))
+    print(markdown(result))
+    return result
+
+
+def markdown(result: dict) -> str:
+    """The measurements of ``result`` as Markdown tables."""
     lines = [f"Machine: {result['machine']}; jax {result['jax']}; {result['date']}", "",
              "| scenario | CBF | control period | batch | env-steps/s | agent-steps/s | compile s |",
              "|---|---|---:|---:|---:|---:|---:|"]
-    for r in rows:
+    for r in result["rows"]:
         lines.append(f"| {r['scenario']} | {r['barrier']} | {r['control_period']} | {r['batch']} | "
                      f"{r['env_steps_per_s']:,.0f} | {r['agent_steps_per_s']:,.0f} | {r['compile_s']:.1f} |")
     lines += ["", "| scaling (warehouse, safe CBF, period 15) | N | env-steps/s | ns per robot-tick |", "|---|---:|---:|---:|"]
-    for s in scaling:
+    for s in result["scaling"]:
         lines.append(f"| batch {s['batch']} | {s['agents']} | {s['env_steps_per_s']:,.0f} | {s['ns_per_robot_tick']:.2f} |")
-    atomic_write(out.with_suffix(".md"), "\n".join(lines) + "\n")
-    print("\n".join(lines))
-    return result
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import importlib.util
 from pathlib import Path
 
@@ -35,3 +36,23 @@ def test_batches_must_be_positive(bench_env, capsys):
     with pytest.raises(SystemExit):
         bench_env.main(["--batches", "4096", "0"])
     assert "--batches must be positive" in capsys.readouterr().err
+
+
+def test_each_measurement_is_written_before_the_next_one(bench_env, tmp_path, monkeypatch):
+    calls = []
+
+    def fake_measure(env, batch, steps, repeats=3):
+        calls.append(batch)
+        if len(calls) == 3:
+            raise KeyboardInterrupt          # interrupted during the third configuration
+        return 1000.0 * batch, 0.5
+
+    monkeypatch.setattr(bench_env, "measure", fake_measure)
+    out = tmp_path / "env.json"
+    with pytest.raises(KeyboardInterrupt):
+        bench_env.main(["--scenarios", "simple_navigation", "--batches", "2", "8", "--settings", "safe:15", "none:1",
+                        "--out", str(out)])
+    rows = json.loads(out.read_text())["rows"]
+    assert [(r["barrier"], r["control_period"], r["batch"], r["env_steps_per_s"]) for r in rows] == [
+        ("safe", 15, 2, 2000.0), ("safe", 15, 8, 8000.0)]
+    assert "| simple_navigation | safe | 15 | 8 | 8,000 |" in out.with_suffix(".md").read_text()
