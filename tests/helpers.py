@@ -2,6 +2,18 @@
 from __future__ import annotations
 
 
+def load_script(name: str):
+    """A module of ``scripts/`` (not a package) loaded from its file."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def interrupt_at(update: int):
     """An ``on_chunk`` callback that simulates Ctrl-C once chunk ``update`` has been saved."""
     def on_chunk(done: int) -> None:

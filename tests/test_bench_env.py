@@ -3,20 +3,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import importlib.util
-from pathlib import Path
 
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "bench_env.py"
+from tests.helpers import load_script
 
 
 @pytest.fixture(scope="module")
 def bench_env():
-    spec = importlib.util.spec_from_file_location("bench_env", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("bench_env")
 
 
 def test_settings_parse_into_barrier_and_period(bench_env):

@@ -1,20 +1,14 @@
 """``scripts/bench_train.py`` times its configurations in turns (no JAX work here: fake chunks)."""
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "bench_train.py"
+from tests.helpers import load_script
 
 
 @pytest.fixture(scope="module")
 def bench_train():
-    spec = importlib.util.spec_from_file_location("bench_train", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("bench_train")
 
 
 def test_configurations_take_turns_and_report_best_and_median(bench_train, monkeypatch):

@@ -1,9 +1,7 @@
 """The command line: subcommands run end to end and bad input gets a clear error."""
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import imageio.v2 as imageio
 import jax
@@ -14,15 +12,7 @@ import marbler_jax
 from marbler_jax_rl.cli import main, parse_overrides
 from marbler_jax_rl.evaluate import greedy_episodes
 from marbler_jax_rl.run import load_run
-
-
-def load_script(name: str):
-    """A module of ``scripts/`` (not a package) loaded from its file."""
-    path = Path(__file__).resolve().parents[1] / "scripts" / f"{name}.py"
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from tests.helpers import load_script
 
 
 def test_list(capsys):
