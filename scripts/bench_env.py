@@ -68,10 +68,9 @@ def main(argv=None):
         settings = [parse_setting(parser, text) for text in args.settings]
     elif args.quick:
         settings = settings[:1]
-    result = dict(date=str(date.today()), jax=jax.__version__, backend=jax.default_backend(),
-                  device=jax.devices()[0].device_kind,
-                  machine=f"{platform.machine()}, {os.cpu_count()} CPU cores, {jax.devices()[0].device_kind}",
-                  rows=[], scaling=[])
+    device = jax.devices()[0].device_kind
+    result = dict(date=str(date.today()), jax=jax.__version__, backend=jax.default_backend(), device=device,
+                  machine=f"{platform.machine()}, {os.cpu_count()} CPU cores, {device}", rows=[], scaling=[])
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
 
