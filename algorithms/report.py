@@ -23,14 +23,18 @@ from .evaluate import PAPER
 from .recipes import RECIPES
 
 # Table order and direction: True where higher is better.
-METRICS = {"reward": True, "steps": False, "prey_left": False, "material_left": False, "collisions": False,
-           "out_of_bounds": False}
+METRICS = {"reward": True, "steps": False, "prey_left": False, "material_left": False, "landmarks_left": False,
+           "resources_left": False, "deliveries": True, "collisions": False, "out_of_bounds": False}
 TITLES = {"reward": "Reward (team episode return)", "steps": "Steps (episode length; the limit after a violation)",
           "prey_left": "Prey left (Predator Capture Prey)", "material_left": "Material left (Material Transport)",
+          "landmarks_left": "Landmarks left (Discovery)", "resources_left": "Resources left (Foraging)",
+          "deliveries": "Deliveries (RWARE)",
           "collisions": "Collisions (% of episodes)", "out_of_bounds": "Out of bounds (% of episodes)"}
 VIOLATION_LIMIT = 1.0        # % of episodes: the benchmark's bound for collisions and out of bounds
 ALGO_ORDER = ("vdn", "qmix", "qmix_ns", "mappo", "ippo")
-SCENARIO_ORDER = ("predator_capture_prey", "warehouse", "material_transport", "arctic_transport")
+# MARBLER's Table II, then the JaxRobotarium scenarios (no paper values)
+SCENARIO_ORDER = ("predator_capture_prey", "warehouse", "material_transport", "arctic_transport", "discovery",
+                  "foraging", "rware")
 
 
 def _rliable():
@@ -256,8 +260,11 @@ over fresh episodes. This file is generated:
 
 ```bash
 marbler-jax benchmark --learner-devices 2 --out results/marbler-table2     # resumable; cells are independent
+marbler-jax benchmark --scenarios discovery foraging rware --learner-devices 2 --out results/marbler-table2
 marbler-jax report results/marbler-table2 --results-md RESULTS.md
 ```
+
+The second command adds JaxRobotarium's three scenarios (rows without paper values).
 
 The results file (`results/marbler-table2/results*.json`, marl-eval's layout) holds every test episode of
 every seed; the wall time of each cell is in its runs' `absolute_metrics`.

@@ -112,6 +112,21 @@ def test_report_renders_tables_curves_and_improvement(tmp_path):
         report.report_markdown({})
 
 
+def test_jaxrobotarium_scenarios_follow_the_paper_and_their_task_metric_gets_a_table():
+    from marbler_jax_rl.recipes import RECIPES
+
+    discovery = _runs([[5.0, 6.0], [7.0, 8.0]], recipe=RECIPES["vdn"].digest("discovery"))
+    for entry in discovery.values():
+        entry[ABSOLUTE]["landmarks_left"] = [1.0, 0.0]
+    pcp = _runs([[30.0], [31.0]], recipe=RECIPES["vdn"].digest("predator_capture_prey"))
+    results = {ENV_NAME: {"discovery": {"vdn": discovery}, "predator_capture_prey": {"vdn": pcp}}}
+    rewards = report.metric_table(results, "reward", reps=50)
+    assert rewards.index("| predator_capture_prey | vdn |") < rewards.index("| discovery | vdn |")
+    landmarks = report.metric_table(results, "landmarks_left", reps=50)
+    assert landmarks.startswith("### Landmarks left (Discovery)")
+    assert "| discovery | vdn | 2 | 0.0M | 0.50 [" in landmarks and "predator_capture_prey" not in landmarks
+
+
 def test_tiny_benchmark_writes_resumes_and_reports(tmp_path):
     """2 algorithms x 1 scenario x 2 seeds on a tiny budget; killed in its second cell, rerun: the first
     cell is not trained again and the second resumes from its checkpoint."""
