@@ -7,6 +7,7 @@ to skip it on a machine without PyPI access.
 """
 from __future__ import annotations
 
+import ast
 import json
 import os
 import shutil
@@ -106,6 +107,26 @@ def test_flattening_refuses_jax_in_the_shared_step_logic(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(tmp_path))
     with pytest.raises(ValueError, match="observe"):
         flatten_module("my_scenario", {"my_scenario": "my_scenario"})
+
+
+def test_flat_sources_format_without_f_strings(tmp_path, monkeypatch):
+    """Python >= 3.12 unparses f-strings with nested quotes the bundle's Python (<= 3.11) cannot parse:
+    the flat sources use str.format instead, with the same results."""
+    (tmp_path / "fstrings.py").write_text(
+        "def message(spec, width):\n"
+        "    name = 'x'\n"
+        "    return (f\"format {spec.get('format')!r}; {{braces}} {name:>{width}}|{f'{width:03d}'} \"\n"
+        "            f\"{3.14159:.{width - 3}f} {name!s:^{width}.1} {'=' * 2}\")\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    source, _ = flatten_module("fstrings", {"fstrings": "fstrings"})
+    flat = {}
+    exec(compile(source, "flat_fstrings.py", "exec"), flat)
+    import fstrings
+
+    assert flat["message"]({"format": "v1"}, 5) == fstrings.message({"format": "v1"}, 5) == (
+        "format 'v1'; {braces}     x|005 3.14   x   ==")
+    for name, text in dict(flatten_modules(CORE_MODULES), fstrings=source).items():
+        assert not any(isinstance(node, ast.JoinedStr) for node in ast.walk(ast.parse(text))), name
 
 
 def _two_passes(names):

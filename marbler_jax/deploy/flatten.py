@@ -9,7 +9,9 @@ package module itself, rewritten on its syntax tree by :func:`flatten_module`:
   JAX-only samplers (``reset`` and the spawn helpers, :data:`JAX_ONLY`) may be dropped; the bundle
   starts its episodes from initial states sampled at export time;
 * ``@struct.dataclass`` scenario states become :func:`marbler_jax.xp.frozen_state` dataclasses;
-* annotations that name JAX types become plain strings.
+* annotations that name JAX types become plain strings;
+* f-strings become ``'...'.format(...)`` calls: ``ast.unparse`` on Python >= 3.12 may reuse an f-string's
+  outer quotes inside it (PEP 701), which Python 3.11 and older cannot parse.
 
 :func:`check_flat_source` then proves the result imports neither JAX nor flax nor ``marbler_jax``.
 """
@@ -139,6 +141,26 @@ class _Flattener(ast.NodeTransformer):
         if _uses(node.annotation, self.jax_names):
             node.annotation = ast.Constant(ast.unparse(node.annotation))
         return node
+
+    def visit_JoinedStr(self, node):
+        args = []
+        template = self._format_template(node, args)
+        return ast.Call(func=ast.Attribute(value=ast.Constant(template), attr="format", ctx=ast.Load()),
+                        args=args, keywords=[])
+
+    def _format_template(self, node, args: list) -> str:
+        """``str.format`` template of the f-string ``node``; its expressions are appended to ``args`` in
+        the order ``str.format`` numbers the fields (a field before the fields nested in its format spec)."""
+        parts = []
+        for value in node.values:
+            if isinstance(value, ast.Constant):
+                parts.append(value.value.replace("{", "{{").replace("}", "}}"))
+                continue
+            args.append(self.visit(value.value))
+            conversion = "" if value.conversion == -1 else "!" + chr(value.conversion)
+            spec = "" if value.format_spec is None else ":" + self._format_template(value.format_spec, args)
+            parts.append("{" + conversion + spec + "}")
+        return "".join(parts)
 
     def visit_ClassDef(self, node):
         decorators = []
