@@ -110,8 +110,8 @@ def test_flattening_refuses_jax_in_the_shared_step_logic(tmp_path, monkeypatch):
 
 
 def test_flat_sources_format_without_f_strings(tmp_path, monkeypatch):
-    """Python >= 3.12 unparses f-strings with nested quotes the bundle's Python (<= 3.11) cannot parse:
-    the flat sources use str.format instead, with the same results."""
+    """Python >= 3.12 unparses f-strings with nested quotes that Python 3.11 and older cannot parse: the
+    flat sources use str.format instead, with the same results."""
     (tmp_path / "fstrings.py").write_text(
         "def message(spec, width):\n"
         "    name = 'x'\n"
