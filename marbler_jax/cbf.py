@@ -55,7 +55,7 @@ exploit the structure:
 * ``solve(..., warm_start=info.multipliers)`` starts from an earlier solve's multipliers and the
   primal point ``u_hat - A^T l`` they give (a consecutive control refresh barely moves the optimum).
 
-Today's Robotarium (rps v2, b23069e; ``shared/spec/robotarium.md`` section 10.11) has its own kinds
+The Robotarium's rps v2 (b23069e; ``shared/spec/robotarium.md`` section 10.11) has its own kinds
 ``"si_v2"``, ``"si_boundary_v2"``, ``"uni_v2"`` and ``"uni_boundary_v2"``: ``u_nom`` is not capped, each
 robot instead gets eight magnitude rows ``n_j . u_k <= c_j`` (a regular octagon of unit normals from +x,
 ``c_j = magnitude_limit cos(pi/8)``, except the first row of ``si_v2``/``uni_v2`` at ``magnitude_limit``);
@@ -257,7 +257,7 @@ class Barrier:
     @property
     def speed_limit(self) -> float | None:
         """The fastest SI velocity [m/s] a certified robot may be given: ``magnitude_limit / cos(pi/8)``,
-        the corner of the speed octagon of today's Robotarium barrier (the most it certifies; a GRITSbot's
+        the corner of the speed octagon of rps v2's barrier (the most it certifies; a GRITSbot's
         projection point cannot move faster than its 0.2 m/s wheel-limited speed). ``None`` for the
         ``uni_dd`` kinds, whose wheel-speed rows bound it already."""
         return None if self.magnitude_limit is None else self.magnitude_limit / math.cos(math.pi / 8)

@@ -55,7 +55,7 @@ def barrier_for(config, num_agents: int):
     """The SI barrier for ``config.barrier_certificate`` (``None`` when ``"none"``).
 
     ``"safe"`` is MARBLER's default (certificate2 with safety radius 0.2), ``"default"`` MARBLER's
-    ``barrier_certificate: default`` (certificate, radius 0.17), ``"safe_v2"`` today's Robotarium
+    ``barrier_certificate: default`` (certificate, radius 0.17), ``"safe_v2"`` the Robotarium's rps v2
     certificate (``si_v2``) at MARBLER's radius 0.2; other names are :func:`marbler_jax.cbf.make_barrier`
     kinds. Iterations: ``config.cbf_iterations`` or :func:`default_cbf_iterations` (the v2 kinds:
     :func:`marbler_jax.cbf.default_iterations`, since they stop a team whose last iterate is not

@@ -16,7 +16,7 @@ Simulator versions (see ``shared/spec/robotarium.md``):
   +-0.2 m/s and omega to +-3.6364 rad/s *independently*; there is no wheel clip.
 * ``"rps2024"`` -- rps 5ec16db / 1fb9dfe (last release of the old API, used by JaxRobotarium's
   deployment). ``step`` clips each *wheel* to +-12.5 rad/s with base length 0.105.
-* ``"robotarium"`` -- rps v2 (b23069e, today's Robotarium): per-wheel clip at 12.5 rad/s with base
+* ``"robotarium"`` -- rps v2 (b23069e, the Robotarium's simulator): per-wheel clip at 12.5 rad/s with base
   length 0.11. The default everywhere.
 
 Integration is forward Euler with the pre-step heading, then theta is wrapped with

@@ -33,7 +33,7 @@ from tests.helpers import initial_params
 REPO = Path(__file__).resolve().parents[1]
 RPS_VENV = REPO / ".rps-venv"
 RPS_V2_VENV = REPO / ".rps-v2-venv"
-TODAYS_ROBOTARIUM = REPO.parent / "shared" / "robotarium"   # rps v2 wheel + the server's library list
+RPS_V2_DIR = REPO.parent / "shared" / "robotarium"   # rps v2 wheel + the server's library list
 SERVER_VERSIONS = ("numpy==2.2.6", "scipy==1.15.3", "matplotlib==3.10.8", "cvxopt==1.3.2")
 
 # scenario -> (algorithm module, config, algo name, env overrides): every architecture we train
@@ -173,13 +173,13 @@ def _rps_python() -> Path:
 
 
 def _rps_v2_python() -> Path:
-    """Python of a virtualenv with today's Robotarium simulator (rps v2) and the server's library
+    """Python of a virtualenv with the Robotarium's rps v2 simulator and the server's library
     versions, without JAX; skips where ``../shared/robotarium`` is absent."""
     if os.environ.get("MARBLER_JAX_SKIP_RPS") == "1":
         pytest.skip("MARBLER_JAX_SKIP_RPS=1")
-    wheels = sorted(TODAYS_ROBOTARIUM.glob("robotarium_python_simulator-*.whl"))
+    wheels = sorted(RPS_V2_DIR.glob("robotarium_python_simulator-*.whl"))
     if not wheels:
-        pytest.skip(f"no rps v2 wheel in {TODAYS_ROBOTARIUM}")
+        pytest.skip(f"no rps v2 wheel in {RPS_V2_DIR}")
     python = RPS_V2_VENV / "bin" / "python"
     probe = "import rps.robotarium, numpy; assert numpy.__version__ == '2.2.6'; assert hasattr(rps.robotarium.Robotarium, 'debug')"
     if not (python.exists() and subprocess.run([python, "-c", probe], capture_output=True).returncode == 0):
@@ -306,8 +306,8 @@ def test_export_deploys_the_robots_loop_unless_told_otherwise(ippo_simple_nav_ru
         cli(["export", str(ippo_simple_nav_run), "--out", str(tmp_path / "p3"), "--control-period", "0"])
 
 
-def test_bundles_run_on_todays_robotarium(bundles, tmp_path):
-    """Every bundle under rps v2 (the Robotarium's simulator today, with the server's numpy 2.2.6 /
+def test_bundles_run_on_rps_v2(bundles, tmp_path):
+    """Every bundle under rps v2 (the Robotarium's simulator, with the server's numpy 2.2.6 /
     scipy / matplotlib / cvxopt and no JAX), through v2's drive-in phase from the chargers: ``debug()``
     passes the trained policy without an error or a warning, counts no actuator error for any bundle,
     and every hard error it reports the bundle saw too."""

@@ -1,4 +1,4 @@
-"""Today's Robotarium barriers (rps v2): golden cases, the whole-team stop, the magnitude polygon, obstacles."""
+"""The Robotarium's rps v2 barriers: golden cases, the whole-team stop, the magnitude polygon, obstacles."""
 from __future__ import annotations
 
 import math

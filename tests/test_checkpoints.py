@@ -135,7 +135,7 @@ def test_damaged_final_parameters_and_best_checkpoint_are_refused_by_name(tmp_pa
 
 def test_a_run_saved_with_marblers_key_names_opens_and_resumes(tmp_path, full):
     """Run folders written before the waypoint-box and spawn-band keys were renamed (``LEFT``, ``UP``,
-    ``ROBOT_INIT_RIGHT_THRESH``, ...) still open and resume: their saved names are read as today's."""
+    ``ROBOT_INIT_RIGHT_THRESH``, ...) still open and resume: their saved names are read as the current ones."""
     import shutil
 
     out = tmp_path / "old"

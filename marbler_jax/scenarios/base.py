@@ -23,7 +23,7 @@ BARRIERS = ("safe", "default", "safe_v2", "none", "si", "si2", "si_boundary", "s
 ROBOTARIUM_SETTINGS = {
     # MARBLER's simulator (rps 6bb184e): its velocity clip and its "safe" certificate
     "2023": {"physics": "marbler", "barrier_certificate": "safe"},
-    # today's Robotarium (rps v2): wheel clip with L = 0.11, the v2 certificate at MARBLER's radius 0.2
+    # the Robotarium's rps v2: wheel clip with L = 0.11, the v2 certificate at MARBLER's radius 0.2
     "v2": {"physics": "robotarium", "barrier_certificate": "safe_v2"},
 }
 """What ``robotarium=`` sets (the physics preset and the barrier); the collision and boundary rules
@@ -45,7 +45,7 @@ class ScenarioConfig:
             15 reproduces MARBLER's training (``robotarium: False``): the held command turns robots
             by up to 90 degrees between refreshes, so collisions and boundary violations occur.
         barrier_certificate: ``"safe"`` (MARBLER default: certificate2, radius 0.2), ``"default"``
-            (certificate, radius 0.17), ``"safe_v2"`` (today's Robotarium certificate, rps v2's
+            (certificate, radius 0.17), ``"safe_v2"`` (the Robotarium's rps v2 certificate,
             ``create_si_barrier_certificate``, at MARBLER's radius 0.2: octagon speed rows, and the
             whole team stopped when its QP has no solution), ``"none"``, or an SI kind of
             :mod:`marbler_jax.cbf`.
@@ -66,9 +66,9 @@ class ScenarioConfig:
         penalize_violations: end the step at the first collision / boundary tick, give every agent
             the scenario's violation reward and end the episode (MARBLER).
         physics: physics preset name (``"robotarium"``, ``"marbler"``, ``"rps2024"``).
-        robotarium: ``"2023"`` (MARBLER's simulator) or ``"v2"`` (today's Robotarium) sets ``physics``
+        robotarium: ``"2023"`` (MARBLER's simulator) or ``"v2"`` (the Robotarium's rps v2) sets ``physics``
             and ``barrier_certificate`` together (:data:`ROBOTARIUM_SETTINGS`); ``None`` (default)
-            leaves them to their own fields: today's physics with MARBLER's certificate, what the
+            leaves them to their own fields: rps v2 physics with MARBLER's certificate, what the
             benchmark's recipes train with.
         zero_reset_obs: return all-zero observations from ``reset`` as MARBLER does (a bug kept
             only as a switch for reproducing the paper; default False returns the real observation).
@@ -225,7 +225,7 @@ to read run folders saved before the keys were renamed)."""
 
 
 def renamed_keys(saved: dict[str, Any]) -> dict[str, Any]:
-    """A saved env config (a run's ``config.json``) with the keys renamed since under today's names."""
+    """A saved env config (a run's ``config.json``) with renamed keys under their current names."""
     return {MARBLER_NAMES.get(key, key): value for key, value in saved.items()}
 
 
