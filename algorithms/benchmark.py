@@ -41,6 +41,8 @@ from marbler_jax.registry import canonical_name
 ENV_NAME = "marbler"
 PAPER_ALGOS = ("vdn", "qmix", "qmix_ns", "mappo", "ippo")
 PAPER_SCENARIOS = ("predator_capture_prey", "warehouse", "material_transport", "arctic_transport")
+# JaxRobotarium's scenarios: benchmark rows without paper values (``--scenarios`` names them)
+JAXROBOTARIUM_SCENARIOS = ("discovery", "foraging", "rware")
 ABSOLUTE = "absolute_metrics"
 WALL_FILE = "wall_seconds.json"
 
@@ -215,4 +217,4 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
 
 
 __all__ = ["run_benchmark", "load_results", "add_cell", "finished_cells", "grid", "results_name", "PAPER_ALGOS",
-           "PAPER_SCENARIOS", "ENV_NAME"]
+           "PAPER_SCENARIOS", "JAXROBOTARIUM_SCENARIOS", "ENV_NAME"]

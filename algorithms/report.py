@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .benchmark import ABSOLUTE, ENV_NAME, PAPER_ALGOS, PAPER_SCENARIOS, load_results
+from .benchmark import ABSOLUTE, ENV_NAME, JAXROBOTARIUM_SCENARIOS, PAPER_ALGOS, PAPER_SCENARIOS, load_results
 from .driver import atomic_write
 from .evaluate import PAPER
 from .recipes import RECIPES
@@ -31,10 +31,8 @@ TITLES = {"reward": "Reward (team episode return)", "steps": "Steps (episode len
           "deliveries": "Deliveries (RWARE)",
           "collisions": "Collisions (% of episodes)", "out_of_bounds": "Out of bounds (% of episodes)"}
 VIOLATION_LIMIT = 1.0        # % of episodes: the benchmark's bound for collisions and out of bounds
-ALGO_ORDER = ("vdn", "qmix", "qmix_ns", "mappo", "ippo")
-# MARBLER's Table II, then the JaxRobotarium scenarios (no paper values)
-SCENARIO_ORDER = ("predator_capture_prey", "warehouse", "material_transport", "arctic_transport", "discovery",
-                  "foraging", "rware")
+ALGO_ORDER = PAPER_ALGOS
+SCENARIO_ORDER = PAPER_SCENARIOS + JAXROBOTARIUM_SCENARIOS      # MARBLER's Table II first
 
 
 def _rliable():
