@@ -234,3 +234,19 @@ def test_held_ticks_counts_a_non_finite_position_as_out_of_bounds(ticks):
     assert bool(physics.out_of_bounds(physics.get_params(), poses)[1])
     _, _, inside, _ = physics.held_ticks(physics.get_params(), poses[None].at[0, 1, 1].set(0.0), vel[None], ticks)
     assert not bool(inside[0])
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("bound", [0.13, 0.5, np.pi / 4])
+def test_turn_equals_cos_and_sin_to_rounding(dtype, bound):
+    """The per-tick turn's polynomial (cos, sin) is within an ulp of the exact values up to its bound,
+    and a bound past pi/4 falls back to cos/sin (a truncated series would be off there)."""
+    delta = np.linspace(-bound, bound, 20001).astype(dtype)
+    exact = np.cos(delta.astype(np.float64)), np.sin(delta.astype(np.float64))
+    got = physics.turn(delta, bound, np)
+    eps = np.finfo(dtype).eps
+    for value, reference in zip(got, exact):
+        assert np.asarray(value).dtype == dtype
+        assert np.max(np.abs(value - reference) / np.maximum(np.abs(reference), np.finfo(dtype).tiny)) <= eps
+    wide = np.linspace(-3.0, 3.0, 101).astype(dtype)
+    np.testing.assert_array_equal(physics.turn(wide, 3.0, np)[0], np.cos(wide))
