@@ -722,16 +722,20 @@ def solve_si_minor(barrier: Barrier, u_nom, points, warm_start: Multipliers | No
         plain = (i == 0) | (i == last) if wheeled else i == 0
         w = (1.0 if plain else omega) if xp is np else xp.where(plain, 1.0, omega)
         lam = list(lam)
+        top, bottom = state[:half], state[half:]
         for r in range(rounds):
-            top, bottom = state[:half], state[half:]
             gap = bottom - top
             step = xp.maximum(-lam[r], (0.5 * w) * (nx[r] * gap[:, 0] + ny[r] * gap[:, 1] - bs[r]))
             lam[r] = lam[r] + step
             push = xp.stack([nx[r] * step, ny[r] * step], axis=1)
             top, bottom = top + push, bottom - push
-            # One turn of the circle: slots 1..m-1 move right by one (two robots: nothing moves).
-            parts = [top[:1], bottom[:1], top[1:half - 1], bottom[1:], top[half - 1:]] if half > 1 else [top, bottom]
-            state = xp.concatenate(parts, axis=0)
+            # One turn of the circle: slots 1..m-1 move right by one (two robots: nothing moves). The two
+            # rows stay separate arrays within a sweep: rebuilding the whole state every round costs XLA's
+            # CPU backend an extra materialised array per round.
+            if half > 1:
+                top, bottom = (xp.concatenate([top[:1], bottom[:1], top[1:half - 1]], axis=0),
+                               xp.concatenate([bottom[1:], top[half - 1:]], axis=0))
+        state = xp.concatenate([top, bottom], axis=0)
         if boxed:
             state, *box = box_step(state, *box, w)
         if wheeled:
