@@ -258,7 +258,7 @@ class MarblerEnv:
 
         Every per-tick op (controller, barrier sweeps, integration, checks) is then a unit-stride vector
         op over the whole batch, and the heading is carried as its unit vector ``(cos, sin)``, advanced by
-        a rotation each tick: the only trig per refresh is ``cos``/``sin`` of the turn ``dt * omega``.
+        a rotation each tick by the turn ``dt * omega`` (:func:`marbler_jax.physics.turn`: no trig call).
         """
         batch = poses.shape[:-2]
         nb = len(batch)

@@ -258,7 +258,7 @@ def held_ticks(params: RobotariumParams, poses, velocities, ticks: int, stop_on_
     ``collision_diameter``; boundary: centre strictly outside the arena) and then integrates. With
     ``stop_on_violation`` the motion stops after the first tick whose pre-tick pose violates (MARBLER
     ends the env step there). The heading is advanced by rotating ``(cos, sin)`` by the constant
-    angle ``dt * omega``, so the loop needs no trig; it agrees with :func:`integrate` to rounding.
+    angle ``dt * omega`` (:func:`turn`), so the loop needs no trig; it agrees with :func:`integrate` to rounding.
 
     Under JAX the tick loop (``ticks > 1``) runs on robot-major, batch-minor arrays ``[N, B]``
     (also under ``jax.vmap``, through :func:`marbler_jax.xp.vmap_in_place`), so every per-tick op
