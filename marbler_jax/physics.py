@@ -304,8 +304,8 @@ def turn(delta, bound: float, xp):
     Up to ``bound = pi / 4`` (a tick's turn is at most ``dt`` times :func:`max_angular_velocity`, 0.13
     rad in every preset) both are their Taylor polynomials, cut where the first omitted term is below
     an eighth of the dtype's epsilon at ``bound``: the values of ``cos``/``sin`` to rounding, without
-    the range reduction that makes XLA's ``cos``/``sin`` the dearest op of a control refresh at
-    ``control_period = 1``. Larger bounds use ``cos``/``sin``.
+    the range reduction XLA's ``cos``/``sin`` run on every call (at ``control_period = 1``, every tick for
+    every robot). Larger bounds use ``cos``/``sin``.
     """
     if bound > math.pi / 4:
         return xp.cos(delta), xp.sin(delta)
