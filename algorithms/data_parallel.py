@@ -11,7 +11,8 @@ else in the jitted program stays replicated on every device.
 On a CPU, JAX sees one device unless it is told otherwise before it first runs:
 ``use_cpu_devices(n)`` (what ``marbler-jax train`` calls for ``--hp learner_devices=n``) splits the
 host into ``n`` CPU devices, each running its share on its own thread: a single-device gradient step
-of small GRU matmuls leaves most of a second core idle, so two devices make it ~1.4x faster on 2 cores.
+of small GRU matmuls leaves most of a second core idle, which a second device puts to work
+(BENCHMARKS.md).
 """
 from __future__ import annotations
 

@@ -20,7 +20,8 @@ parallel envs.
 
 ``paper`` holds the settings of MARBLER's EPyMARL model files instead (``../shared/spec/scenarios.md``
 E.2): GRU 128 agents, gamma 0.99, 5000-episode buffer, one gradient step per collected episode, 5M env
-steps (MAPPO 25M). It is for comparison; on a CPU it runs at ~1k env-steps/s.
+steps (MAPPO 25M). It is for comparison: one gradient step per episode makes it far slower per env step
+(BENCHMARKS.md).
 """
 from __future__ import annotations
 

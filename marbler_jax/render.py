@@ -20,7 +20,7 @@ class FrameDrawer:
 
     The static parts (arena, waypoint box, axes) are drawn once and kept as a background; each call
     restores it and draws only that state's robots, scenario layers and title on top (matplotlib
-    blitting), ~3-4x faster per frame than building a fresh figure. One drawer per env, size and dpi.
+    blitting), much less work per frame than building a fresh figure. One drawer per env, size and dpi.
     """
 
     def __init__(self, env, *, size=(6.4, 4.2), dpi: int = 80):

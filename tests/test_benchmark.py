@@ -192,7 +192,7 @@ def test_benchmark_rejects_bad_settings(tmp_path):
 @pytest.mark.slow
 def test_two_processes_share_the_grid_through_jax_distributed(tmp_path):
     """Two local processes join JAX's distributed runtime; each trains its own cell and writes its own
-    results file, and ``report`` merges them (~2 minutes on 2 cores)."""
+    results file, and ``report`` merges them."""
     import socket
     import subprocess
     import sys
