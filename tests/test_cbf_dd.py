@@ -113,7 +113,8 @@ def test_solution_satisfies_the_wheel_space_kkt_conditions(kind):
     assert active_kinds == ({"pair", "wheel", "wall"} if boundary else {"pair", "wheel"})
 
 
-@pytest.mark.parametrize("kind", cbf.DD_KINDS)
+# uni_dd_boundary's rows are uni_dd's plus the walls: the default run checks it, -m slow both
+@pytest.mark.parametrize("kind", [pytest.param(k, marks=pytest.mark.slow) if k == "uni_dd" else k for k in cbf.DD_KINDS])
 def test_default_sweeps_in_float32_match_the_converged_solution(kind):
     # the golden files' acceptance rule for unicycle kinds, on random teams of 4 / 10 / 20 robots
     rng = np.random.default_rng(3)

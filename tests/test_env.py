@@ -63,8 +63,11 @@ def test_determinism_jit_and_vmap(env_core):
     out_a = step(keys, state, actions)
     out_b = step(keys, state, actions)
     jax.tree_util.tree_map(np.testing.assert_array_equal, out_a, out_b)  # same key -> same result
-    looped = [env.step(keys[i], jax.tree_util.tree_map(lambda x: x[i], state), actions[i]) for i in range(3)]
-    for i in range(3):  # vmap == loop, jit == eager
+    # vmap == loop; jit == eager on one scenario (op-by-op dispatch compiles every op of the step, and what
+    # it checks -- XLA's fusion keeps the arithmetic -- does not depend on the scenario)
+    one = env.step if env.name == "predator_capture_prey" else jax.jit(env.step)
+    looped = [one(keys[i], jax.tree_util.tree_map(lambda x: x[i], state), actions[i]) for i in range(3)]
+    for i in range(3):
         np.testing.assert_allclose(out_a[0][i], looped[i][0], atol=1e-5)
         np.testing.assert_allclose(out_a[1].poses[i], looped[i][1].poses, atol=1e-5)
         np.testing.assert_allclose(out_a[2][i], looped[i][2], atol=1e-5)
