@@ -6,6 +6,8 @@ from typing import Callable
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, PartitionSpec as P
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,9 +63,34 @@ def batched_rollout(env, key, num_envs: int, num_steps: int, policy: Callable | 
     return state, traj
 
 
-def make_rollout(env, num_envs: int, num_steps: int, policy: Callable | None = None):
-    """A jitted ``key -> (state, (rewards, done, info))`` for :func:`batched_rollout`."""
-    return jax.jit(lambda key: batched_rollout(env, key, num_envs, num_steps, policy))
+def make_rollout(env, num_envs: int, num_steps: int, policy: Callable | None = None, devices: int = 1):
+    """A jitted ``key -> (state, (rewards, done, info))`` for :func:`batched_rollout`.
+
+    ``devices > 1`` splits the envs over this process's first ``devices`` devices (``num_envs`` divisible
+    by it): device ``i`` runs ``num_envs / devices`` envs from ``jax.random.split(key, devices)[i]``, so
+    the episodes are those of one-device rollouts from those keys, concatenated along the env axis. On a
+    CPU, JAX shows one device unless ``jax.config.update("jax_num_cpu_devices", n)`` runs before it first
+    computes; the env's per-tick kernels are small, and XLA's CPU backend runs them faster as one device
+    per core than as one device spread over every core (BENCHMARKS.md).
+    """
+    if devices == 1:
+        return jax.jit(lambda key: batched_rollout(env, key, num_envs, num_steps, policy))
+    if isinstance(devices, bool) or not isinstance(devices, int) or devices < 1:
+        raise ValueError(f"devices must be an integer >= 1, got {devices!r}")
+    available = jax.local_devices()
+    if len(available) < devices:
+        raise ValueError(f"devices={devices} but JAX has {len(available)} {available[0].platform} device(s); on a CPU "
+                         f"run jax.config.update('jax_num_cpu_devices', {devices}) before JAX first computes")
+    if num_envs % devices:
+        raise ValueError(f"num_envs={num_envs} must be divisible by devices={devices}")
+    mesh = Mesh(np.array(available[:devices]), ("envs",))
+
+    def share(keys):            # keys [1, 2]: this device's key
+        return batched_rollout(env, keys[0], num_envs // devices, num_steps, policy)
+
+    split = jax.shard_map(share, mesh=mesh, in_specs=P("envs"), out_specs=(P("envs"), P(None, "envs")),
+                          check_vma=False)
+    return jax.jit(lambda key: split(jax.random.split(key, devices)))
 
 
 def at_first_done(done, x):

@@ -2,10 +2,12 @@
 
     python scripts/bench_env.py --out bench_out/env.json [--quick]
     python scripts/bench_env.py --scenarios predator_capture_prey --batches 4096 65536 --settings safe:15 safe:1
+    python scripts/bench_env.py --scenarios predator_capture_prey --batches 256 4096 --settings safe:15 safe:1 --devices 2
 
 For every scenario, batch in {1, 256, 4096} (``--batches``), barrier off / safe and control period 15 / 1
 (``--settings barrier:period ...``):
-env-steps/s, agent-steps/s and compile time (measured separately). Also the cost per robot-tick of
+env-steps/s, agent-steps/s and compile time (measured separately). ``--devices N`` splits each batch over N
+devices (:func:`marbler_jax.rollout.make_rollout`; on a CPU, N CPU devices). Also the cost per robot-tick of
 Warehouse with 4 and 20 robots (safe barrier, control period 15, batch 4096). Writes JSON and a
 Markdown table next to it after every measurement, so an interrupted run keeps what it measured.
 """
@@ -29,9 +31,10 @@ from marbler_jax_rl.driver import atomic_write  # noqa: E402
 from marbler_jax.rollout import make_rollout  # noqa: E402
 
 
-def measure(env, batch: int, steps: int, repeats: int = 3):
-    """(env-steps/s, compile seconds) of a jitted rollout of ``steps`` steps over ``batch`` envs."""
-    rollout = make_rollout(env, batch, steps)
+def measure(env, batch: int, steps: int, repeats: int = 3, devices: int = 1):
+    """(env-steps/s, compile seconds) of a jitted rollout of ``steps`` steps over ``batch`` envs (split over
+    ``devices`` devices)."""
+    rollout = make_rollout(env, batch, steps, devices=devices)
     t0 = time.perf_counter()
     jax.block_until_ready(rollout(jax.random.PRNGKey(0)))
     compile_s = time.perf_counter() - t0
@@ -59,10 +62,16 @@ def main(argv=None):
     parser.add_argument("--batches", type=int, nargs="+", help="env batch sizes (default 1 256 4096)")
     parser.add_argument("--settings", nargs="+", metavar="BARRIER:PERIOD",
                         help="barrier and control period pairs (default safe:15 none:15 safe:1 none:1)")
+    parser.add_argument("--devices", type=int, default=1,
+                        help="split every batch over this many devices (on a CPU: CPU devices, one per core)")
     args = parser.parse_args(argv)
     batches = args.batches or ([1, 64] if args.quick else [1, 256, 4096])
     if any(b < 1 for b in batches):
         parser.error(f"--batches must be positive integers, got {batches}")
+    if args.devices < 1 or any(b % args.devices for b in batches):
+        parser.error(f"--devices must be >= 1 and divide every batch, got {args.devices} for batches {batches}")
+    if args.devices > 1:
+        jax.config.update("jax_num_cpu_devices", args.devices)   # before JAX first computes
     settings = [("safe", 15), ("none", 15), ("safe", 1), ("none", 1)]
     if args.settings:
         settings = [parse_setting(parser, text) for text in args.settings]
@@ -70,7 +79,8 @@ def main(argv=None):
         settings = settings[:1]
     device = jax.devices()[0].device_kind
     result = dict(date=str(date.today()), jax=jax.__version__, backend=jax.default_backend(), device=device,
-                  machine=f"{platform.machine()}, {os.cpu_count()} CPU cores, {device}", rows=[], scaling=[])
+                  machine=f"{platform.machine()}, {os.cpu_count()} CPU cores, {device}", devices=args.devices,
+                  rows=[], scaling=[])
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
 
@@ -85,7 +95,7 @@ def main(argv=None):
             env = marbler_jax.make(name, barrier_certificate=barrier, control_period=period)
             for batch in batches:
                 steps = 8 if args.quick else (20 if batch >= 256 else 50)
-                sps, compile_s = measure(env, batch, steps, repeats=1 if args.quick else 3)
+                sps, compile_s = measure(env, batch, steps, repeats=1 if args.quick else 3, devices=args.devices)
                 result["rows"].append(dict(scenario=name, barrier=barrier, control_period=period, batch=batch,
                                            agents=env.num_agents, env_steps_per_s=sps,
                                            agent_steps_per_s=sps * env.num_agents, compile_s=compile_s))
@@ -97,7 +107,7 @@ def main(argv=None):
     for n in ([4] if args.quick else [4, 20]):
         env = marbler_jax.make("warehouse", n_agents=n, start_dist=0.3, control_period=15)
         batch = 64 if args.quick else 4096
-        sps, _ = measure(env, batch, 8 if args.quick else 10, repeats=1 if args.quick else 3)
+        sps, _ = measure(env, batch, 8 if args.quick else 10, repeats=1 if args.quick else 3, devices=args.devices)
         per_tick = 1e9 / (sps * n * env.config.update_frequency)
         result["scaling"].append(dict(scenario="warehouse", agents=n, batch=batch, env_steps_per_s=sps,
                                       ns_per_robot_tick=per_tick))
@@ -109,7 +119,8 @@ def main(argv=None):
 
 def markdown(result: dict) -> str:
     """The measurements of ``result`` as Markdown tables."""
-    lines = [f"Machine: {result['machine']}; jax {result['jax']}; {result['date']}", "",
+    lines = [f"Machine: {result['machine']}; batches split over {result.get('devices', 1)} device(s); "
+             f"jax {result['jax']}; {result['date']}", "",
              "| scenario | CBF | control period | batch | env-steps/s | agent-steps/s | compile s |",
              "|---|---|---:|---:|---:|---:|---:|"]
     for r in result["rows"]:

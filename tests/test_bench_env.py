@@ -33,10 +33,16 @@ def test_batches_must_be_positive(bench_env, capsys):
     assert "--batches must be positive" in capsys.readouterr().err
 
 
+def test_devices_must_divide_every_batch(bench_env, capsys):
+    with pytest.raises(SystemExit):
+        bench_env.main(["--batches", "256", "100", "--devices", "3"])
+    assert "--devices must be >= 1 and divide every batch, got 3" in capsys.readouterr().err
+
+
 def test_each_measurement_is_written_before_the_next_one(bench_env, tmp_path, monkeypatch):
     calls = []
 
-    def fake_measure(env, batch, steps, repeats=3):
+    def fake_measure(env, batch, steps, repeats=3, devices=1):
         calls.append(batch)
         if len(calls) == 3:
             raise KeyboardInterrupt          # interrupted during the third configuration

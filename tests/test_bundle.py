@@ -313,12 +313,13 @@ def test_bundles_run_on_rps_v2(bundles, tmp_path):
     and every hard error it reports the bundle saw too."""
     python = _rps_v2_python()
     for name, folder in bundles.items():
-        stdout = _run_bundle(python, folder, tmp_path / f"trace-{name}")
-        episodes = 2 if name == "simple_navigation" else 1
-        assert stdout.count("episode ") == episodes and "real seconds to execute" in stdout, stdout
+        # one episode each: every episode drives the robots in from the chargers again (most of a run's time);
+        # the trained bundle's second episode runs under the 2023 rps above
+        stdout = _run_bundle(python, folder, tmp_path / f"trace-{name}", {"MARBLER_JAX_EPISODES": "1"})
+        assert stdout.count("episode ") == 1 and "real seconds to execute" in stdout, stdout
         assert "exceed actuator limits" not in stdout, (name, stdout)
         if name == "simple_navigation":
-            assert stdout.count("No errors or warnings in your simulation!") == episodes, stdout
+            assert stdout.count("No errors or warnings in your simulation!") == 1, stdout
         else:
             assert ("robots were too close" not in stdout) or "collisions=True" in stdout, (name, stdout)
             assert ("outside boundaries" not in stdout) or "out_of_bounds=True" in stdout, (name, stdout)

@@ -339,3 +339,41 @@ def test_batch_minor_tick_loop_matches_the_per_refresh_reference(barrier, period
     np.testing.assert_array_equal(outside, ref_out)
     np.testing.assert_allclose(dist, ref_dist, atol=2e-5)
     assert float(jnp.abs(poses[..., :2] - state.poses[..., :2]).max()) > 0.05    # the robots moved
+
+
+SPLIT_ROLLOUT = """
+import jax
+jax.config.update("jax_num_cpu_devices", 2)
+import numpy as np
+import marbler_jax
+from marbler_jax.rollout import make_rollout
+
+env = marbler_jax.make("predator_capture_prey", control_period=1)
+key = jax.random.PRNGKey(3)
+state, traj = make_rollout(env, 8, 5, devices=2)(key)
+for i, k in enumerate(jax.random.split(key, 2)):      # each device's share is a one-device rollout from its key
+    s, t = make_rollout(env, 4, 5)(k)
+    jax.tree_util.tree_map(lambda a, b: np.testing.assert_array_equal(a[4 * i:4 * i + 4], b), state, s)
+    jax.tree_util.tree_map(lambda a, b: np.testing.assert_array_equal(a[:, 4 * i:4 * i + 4], b), traj, t)
+for bad, match in ((dict(num_envs=7, devices=2), "num_envs=7 must be divisible by devices=2"),
+                   (dict(num_envs=8, devices=3), "devices=3 but JAX has 2 cpu device"),
+                   (dict(num_envs=8, devices=0), "devices must be an integer >= 1, got 0")):
+    try:
+        make_rollout(env, num_steps=5, **bad)
+    except ValueError as error:
+        assert match in str(error), error
+    else:
+        raise AssertionError(bad)
+print("ok")
+"""
+
+
+def test_a_rollout_split_over_devices_runs_each_share_like_one_device():
+    """``make_rollout(..., devices=2)`` (two CPU devices, set before JAX first runs: a fresh interpreter)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    result = subprocess.run([sys.executable, "-c", SPLIT_ROLLOUT], capture_output=True, text=True, timeout=600,
+                            cwd=Path(__file__).resolve().parents[1])
+    assert result.returncode == 0 and result.stdout.strip() == "ok", result.stdout + result.stderr
