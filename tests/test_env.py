@@ -348,7 +348,7 @@ import numpy as np
 import marbler_jax
 from marbler_jax.rollout import make_rollout
 
-env = marbler_jax.make("predator_capture_prey", control_period=1)
+env = marbler_jax.make("simple_navigation", control_period=1)
 key = jax.random.PRNGKey(3)
 state, traj = make_rollout(env, 8, 5, devices=2)(key)
 for i, k in enumerate(jax.random.split(key, 2)):      # each device's share is a one-device rollout from its key
