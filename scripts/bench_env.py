@@ -28,6 +28,7 @@ from tqdm.auto import tqdm
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import marbler_jax  # noqa: E402
 from marbler_jax_rl.driver import atomic_write  # noqa: E402
+from marbler_jax_rl.data_parallel import use_cpu_devices  # noqa: E402
 from marbler_jax.rollout import make_rollout  # noqa: E402
 
 
@@ -70,14 +71,16 @@ def main(argv=None):
         parser.error(f"--batches must be positive integers, got {batches}")
     if args.devices < 1 or any(b % args.devices for b in batches):
         parser.error(f"--devices must be >= 1 and divide every batch, got {args.devices} for batches {batches}")
-    if args.devices > 1:
-        jax.config.update("jax_num_cpu_devices", args.devices)   # before JAX first computes
+    use_cpu_devices(args.devices)          # before JAX first computes (on a CPU: one device per share)
     settings = [("safe", 15), ("none", 15), ("safe", 1), ("none", 1)]
     if args.settings:
         settings = [parse_setting(parser, text) for text in args.settings]
     elif args.quick:
         settings = settings[:1]
     device = jax.devices()[0].device_kind
+    if len(jax.local_devices()) < args.devices:
+        parser.error(f"--devices {args.devices}: JAX has {len(jax.local_devices())} {jax.default_backend()} "
+                     "device(s) (on a CPU it makes as many CPU devices as asked for)")
     result = dict(date=str(date.today()), jax=jax.__version__, backend=jax.default_backend(), device=device,
                   machine=f"{platform.machine()}, {os.cpu_count()} CPU cores, {device}", devices=args.devices,
                   rows=[], scaling=[])

@@ -39,6 +39,15 @@ def test_devices_must_divide_every_batch(bench_env, capsys):
     assert "--devices must be >= 1 and divide every batch, got 3" in capsys.readouterr().err
 
 
+def test_more_devices_than_jax_has_is_a_usage_error(bench_env, capsys):
+    import jax
+
+    jax.devices()            # the backend runs: the script cannot add CPU devices to this process any more
+    with pytest.raises(SystemExit):
+        bench_env.main(["--batches", "256", "--devices", "64", "--scenarios", "simple_navigation"])
+    assert "--devices 64: JAX has" in capsys.readouterr().err
+
+
 def test_each_measurement_is_written_before_the_next_one(bench_env, tmp_path, monkeypatch):
     calls = []
 
