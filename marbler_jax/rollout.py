@@ -73,10 +73,10 @@ def make_rollout(env, num_envs: int, num_steps: int, policy: Callable | None = N
     computes; the env's per-tick kernels are small, and XLA's CPU backend runs them faster as one device
     per core than as one device spread over every core (BENCHMARKS.md).
     """
-    if devices == 1:
-        return jax.jit(lambda key: batched_rollout(env, key, num_envs, num_steps, policy))
     if isinstance(devices, bool) or not isinstance(devices, int) or devices < 1:
         raise ValueError(f"devices must be an integer >= 1, got {devices!r}")
+    if devices == 1:
+        return jax.jit(lambda key: batched_rollout(env, key, num_envs, num_steps, policy))
     available = jax.local_devices()
     if len(available) < devices:
         raise ValueError(f"devices={devices} but JAX has {len(available)} {available[0].platform} device(s); on a CPU "

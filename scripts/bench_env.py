@@ -69,8 +69,10 @@ def main(argv=None):
     batches = args.batches or ([1, 64] if args.quick else [1, 256, 4096])
     if any(b < 1 for b in batches):
         parser.error(f"--batches must be positive integers, got {batches}")
-    if args.devices < 1 or any(b % args.devices for b in batches):
-        parser.error(f"--devices must be >= 1 and divide every batch, got {args.devices} for batches {batches}")
+    scaling_batch = 64 if args.quick else 4096
+    if args.devices < 1 or any(b % args.devices for b in batches + [scaling_batch]):
+        parser.error(f"--devices must be >= 1 and divide every batch, got {args.devices} for batches "
+                     f"{batches + [scaling_batch]}")
     use_cpu_devices(args.devices)          # before JAX first computes (on a CPU: one device per share)
     settings = [("safe", 15), ("none", 15), ("safe", 1), ("none", 1)]
     if args.settings:
@@ -109,7 +111,7 @@ def main(argv=None):
     bar.close()
     for n in ([4] if args.quick else [4, 20]):
         env = marbler_jax.make("warehouse", n_agents=n, start_dist=0.3, control_period=15)
-        batch = 64 if args.quick else 4096
+        batch = scaling_batch
         sps, _ = measure(env, batch, 8 if args.quick else 10, repeats=1 if args.quick else 3, devices=args.devices)
         per_tick = 1e9 / (sps * n * env.config.update_frequency)
         result["scaling"].append(dict(scenario="warehouse", agents=n, batch=batch, env_steps_per_s=sps,

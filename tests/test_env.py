@@ -357,7 +357,8 @@ for i, k in enumerate(jax.random.split(key, 2)):      # each device's share is a
     jax.tree_util.tree_map(lambda a, b: np.testing.assert_array_equal(a[:, 4 * i:4 * i + 4], b), traj, t)
 for bad, match in ((dict(num_envs=7, devices=2), "num_envs=7 must be divisible by devices=2"),
                    (dict(num_envs=8, devices=3), "devices=3 but JAX has 2 cpu device"),
-                   (dict(num_envs=8, devices=0), "devices must be an integer >= 1, got 0")):
+                   (dict(num_envs=8, devices=0), "devices must be an integer >= 1, got 0"),
+                   (dict(num_envs=8, devices=True), "devices must be an integer >= 1, got True")):
     try:
         make_rollout(env, num_steps=5, **bad)
     except ValueError as error:
