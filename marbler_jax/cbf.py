@@ -46,8 +46,7 @@ exploit the structure:
   round-robin tournament; the pairs of a round are disjoint, so a whole round is updated at once
   with exactly the Gauss-Seidel result (N-1 vector steps per sweep instead of C(N,2) scalar ones).
   The robots' velocities are kept in the circle's two rows of slots, the second row reversed, so
-  that a turn of the circle is two shifts by one: no reversal or gather in the inner loop (a
-  reversal per round made the N = 20 solve ~3x slower on XLA's CPU backend);
+  that a turn of the circle is two shifts by one: no reversal or gather in the inner loop;
 * pair rows are scaled to unit normals, so a row's step needs three numbers (normal, scaled
   ``b``) and no division;
 * boundary rows act on one coordinate each and are handled as per-robot boxes in one step;

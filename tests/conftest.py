@@ -20,17 +20,16 @@ import pytest  # noqa: E402
 # program, JAX version and flags, so they never change a result. Set JAX_COMPILATION_CACHE_DIR to move it.
 _CACHE = os.environ.setdefault(
     "JAX_COMPILATION_CACHE_DIR", str(Path(__file__).resolve().parents[1] / ".pytest_cache" / "jax-compilation"))
-# Cache every program, not only those that took over a second to compile (JAX's default): most of the
-# suite's time is compilation (a warm cache runs it in 6.4 instead of 16.3 minutes), and the many
-# sub-second programs that several workers and CLI subprocesses build add up too.
+# Cache every program, not only those that took over a second to compile (JAX's default): much of the
+# suite's time is compilation, and the many sub-second programs that several workers and CLI subprocesses
+# build add up too (BENCHMARKS.md has the suite's cold and warm times).
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 
 # The suite is compile-bound, so it compiles for speed of compilation (a setting already in XLA_FLAGS is kept):
-# LLVM at -O2 instead of -O3 and XLA's CPU fusion emitters off, which together roughly halve compile time for
-# slower-running programs. Tests compare programs built under the same flags, so neither changes what they check.
+# LLVM at -O2 instead of -O3 and XLA's CPU fusion emitters off, which compile faster and run somewhat slower.
+# Tests compare programs built under the same flags, so neither changes what they check.
 # Each of the two xdist workers has one core: a program is compiled as one LLVM module and run without Eigen's
-# thread pool, instead of splitting both over threads that only contend with the other worker (~10 % less
-# wall time for the suite's compile-heavy modules).
+# thread pool, instead of splitting both over threads that would only contend with the other worker.
 _FAST_COMPILE = ("--xla_backend_optimization_level=2 --xla_cpu_use_fusion_emitters=false "
                  "--xla_cpu_parallel_codegen_split_count=1 --xla_cpu_multi_thread_eigen=false")
 
