@@ -51,3 +51,15 @@ def initial_params(module, env, cfg, seed: int = 0):
 
     init = module.make_train(env, cfg).init
     return jax.jit(lambda key: init(key)["params"])(jax.random.PRNGKey(seed))
+
+
+def run_with_two_devices(script: str, *args: str) -> None:
+    """Runs ``script`` (which asks JAX for two CPU devices before it first runs) in a fresh interpreter from
+    the repository root; it must print ``ok`` last."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    result = subprocess.run([sys.executable, "-c", script, *args], cwd=Path(__file__).resolve().parents[1],
+                            capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0 and result.stdout.strip().endswith("ok"), result.stdout + result.stderr

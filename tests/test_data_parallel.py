@@ -5,10 +5,7 @@ resumes bit-exactly. JAX picks its CPU device count when it first runs, so
 the two-device checks run in a fresh interpreter."""
 from __future__ import annotations
 
-import subprocess
-import sys
 import textwrap
-from pathlib import Path
 
 import jax
 import numpy as np
@@ -16,8 +13,7 @@ import pytest
 
 import marbler_jax
 from marbler_jax_rl import vdn
-
-REPO = Path(__file__).resolve().parents[1]
+from tests.helpers import run_with_two_devices
 
 PRELUDE = """
 import sys
@@ -73,13 +69,6 @@ RESUME = PRELUDE + textwrap.dedent("""
         np.testing.assert_array_equal(full[name], cut[name], err_msg=name)
     print("ok")
 """)
-
-
-def run_with_two_devices(script: str, *args: str) -> None:
-    """Runs ``script`` in a fresh interpreter with two CPU devices; it must print ``ok`` last."""
-    result = subprocess.run([sys.executable, "-c", script, *args], cwd=REPO, capture_output=True, text=True,
-                            timeout=600)
-    assert result.returncode == 0 and result.stdout.strip().endswith("ok"), result.stdout + result.stderr
 
 
 def test_two_devices_match_one():

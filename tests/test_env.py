@@ -9,6 +9,7 @@ import pytest
 import marbler_jax
 from marbler_jax import cbf, control_loop
 from marbler_jax.rollout import make_rollout
+from tests.helpers import run_with_two_devices
 
 NAMES = marbler_jax.registered()
 
@@ -371,10 +372,4 @@ print("ok")
 
 def test_a_rollout_split_over_devices_runs_each_share_like_one_device():
     """``make_rollout(..., devices=2)`` (two CPU devices, set before JAX first runs: a fresh interpreter)."""
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    result = subprocess.run([sys.executable, "-c", SPLIT_ROLLOUT], capture_output=True, text=True, timeout=600,
-                            cwd=Path(__file__).resolve().parents[1])
-    assert result.returncode == 0 and result.stdout.strip() == "ok", result.stdout + result.stderr
+    run_with_two_devices(SPLIT_ROLLOUT)
