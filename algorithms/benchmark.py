@@ -151,9 +151,13 @@ def cell_runs(run: Path, env, greedy_of_params, seeds: int, absolute_episodes: i
 
 def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS, seeds: int = 5,
                   total_steps: int | None = None, eval_points: int = 20, test_episodes: int = 64,
-                  absolute_factor: int = 10, learner_devices: int = 1, seed: int = 0, progress: bool = True,
+                  absolute_factor: int = 10, devices: int = 1, seed: int = 0, progress: bool = True,
                   process_index: int = 0, process_count: int = 1, recipes=None, log=print, on_chunk=None) -> dict:
     """Train and evaluate this process's share of the grid into ``out``; returns its results dict.
+    ``devices > 1`` spreads each cell over that many devices (on a CPU, ask for them with
+    :func:`marbler_jax_rl.data_parallel.use_cpu_devices` first): value-based algorithms split each gradient
+    step (``learner_devices``), PPO algorithms split the seeds (``seed_batching="devices"``); either way
+    every seed trains as on one device, up to float rounding.
     ``recipes``: ``{algo: Recipe}`` instead of :data:`marbler_jax_rl.recipes.RECIPES`."""
     recipes = dict(recipes or {})
 
@@ -161,7 +165,7 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
         return recipes[algo] if algo in recipes else recipe(algo)
 
     for name, value, low in (("seeds", seeds, 1), ("eval_points", eval_points, 1), ("test_episodes", test_episodes, 1),
-                             ("absolute_factor", absolute_factor, 1), ("learner_devices", learner_devices, 1)):
+                             ("absolute_factor", absolute_factor, 1), ("devices", devices, 1)):
         if not isinstance(value, int) or value < low:
             raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
     if total_steps is not None and total_steps < 1:
@@ -181,8 +185,9 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
         env_overrides, hp, steps = recipe_of(algo).settings(scenario)
         steps = int(total_steps or steps)
         digest = settings_digest(env_overrides, hp, steps)
-        if learner_devices > 1 and has_setting(algo, "learner_devices"):
-            hp["learner_devices"] = learner_devices
+        split_steps = devices > 1 and has_setting(algo, "learner_devices")
+        if split_steps:
+            hp["learner_devices"] = devices
         env = marbler_jax.make(scenario, **env_overrides)
         cfg = build_config(algo, dict(hp, total_timesteps=steps))
         updates = ALGORITHMS[algo][1](env, cfg).num_updates
@@ -199,7 +204,8 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
 
         train(scenario, algo, steps, seeds, run, env_overrides=env_overrides, hp=hp, eval_episodes=0,
               checkpoint_every=max(1, updates // eval_points), resume=resume, seed=seed,
-              progress=progress, log=log, test_episodes=test_episodes, on_chunk=chunk_saved)
+              progress=progress, log=log, test_episodes=test_episodes, on_chunk=chunk_saved,
+              seed_batching="devices" if devices > 1 and not split_steps else "vmap")
         greedy = ALGORITHMS[algo][2]
         runs = cell_runs(run, env, lambda p: greedy(env, cfg, p), seeds, absolute_factor * test_episodes,
                          jax.random.PRNGKey(seed + 2024), digest)

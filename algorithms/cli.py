@@ -202,10 +202,13 @@ def _train(args) -> int:
     env_overrides, hp, steps = settings(args.preset, canonical_name(args.scenario), args.algo)
     env_overrides.update(parse_overrides(args.set))
     hp.update(parse_overrides(args.hp))
-    if isinstance(hp.get("learner_devices"), int):
-        from .data_parallel import use_cpu_devices
+    from .data_parallel import use_cpu_devices
 
-        use_cpu_devices(hp["learner_devices"])      # before JAX first runs
+    # before JAX first runs: a CPU split into the devices the run is spread over
+    if args.seed_batching == "devices":
+        use_cpu_devices(os.cpu_count() or 1)
+    elif isinstance(hp.get("learner_devices"), int):
+        use_cpu_devices(hp["learner_devices"])
     total = int(float(args.total_steps)) if args.total_steps else steps
     if args.hang_seconds < 0:
         raise ValueError(f"--hang-seconds must be >= 0 (0 = off), got {args.hang_seconds}")
@@ -223,15 +226,15 @@ def _benchmark(args) -> int:
         if args.shard:
             raise ValueError("--coordinator assigns the shard itself; drop --shard")
         return _benchmark_distributed(args)
-    if args.learner_devices > 1:
+    if args.devices > 1:
         from .data_parallel import use_cpu_devices
 
-        use_cpu_devices(args.learner_devices)        # before JAX first runs
+        use_cpu_devices(args.devices)        # before JAX first runs
     from .benchmark import run_benchmark
 
     total = int(float(args.total_steps)) if args.total_steps else None
     run_benchmark(args.out, args.algos, args.scenarios, args.seeds, total, args.eval_points, args.test_episodes,
-                  args.absolute_factor, args.learner_devices, args.seed, progress=not args.no_progress,
+                  args.absolute_factor, args.devices, args.seed, progress=not args.no_progress,
                   process_index=shard[0], process_count=shard[1])
     print(f"results: {args.out}; tables and curves: marbler-jax report {args.out}")
     return 0
@@ -459,7 +462,7 @@ CHECKPOINT_HELP = "which parameters of the run: each seed's best greedy test (be
 
 def build_parser() -> argparse.ArgumentParser:
     from .benchmark import PAPER_ALGOS, PAPER_SCENARIOS
-    from .driver import ALGORITHMS
+    from .driver import ALGORITHMS, SEED_BATCHING
     from .recipes import RECIPE_NAMES
     from .run import CHECKPOINTS, DEFAULT_CHECKPOINT
     from marbler_jax import cbf, physics
@@ -516,8 +519,9 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--hang-seconds", type=float, default=120.0,
                     help="restart with --resume when the process used no CPU for this long inside a "
                          "training chunk (the jaxlib 0.10.2 CPU hang); 0 = off")
-    tr.add_argument("--seed-batching", choices=["vmap", "map"], default="vmap",
-                    help="vmap: seeds vectorized in one batch (default); map: one after another in the program")
+    tr.add_argument("--seed-batching", choices=list(SEED_BATCHING), default="vmap",
+                    help="vmap: seeds vectorized in one batch (default); map: one after another in the program; "
+                         "devices: the seeds spread over the devices (on a CPU, one device per core)")
     tr.set_defaults(func=_train)
     ev = sub.add_parser("evaluate", help="paper-style metrics (MARBLER Table II) of a run's best checkpoint")
     ev.add_argument("run", help="run folder written by `marbler-jax train`")
@@ -567,8 +571,9 @@ def build_parser() -> argparse.ArgumentParser:
     bm.add_argument("--absolute-factor", type=int, default=10,
                     help="the absolute metric evaluates each seed's best checkpoint over this many times "
                          "--test-episodes episodes")
-    bm.add_argument("--learner-devices", type=int, default=1,
-                    help="CPU devices each value-based gradient step is split over (2 on a 2-core CPU)")
+    bm.add_argument("--devices", "--learner-devices", dest="devices", type=int, default=1,
+                    help="devices each cell is spread over (on a CPU, one per core: 2 on a 2-core CPU): "
+                         "value-based gradient steps or PPO seeds are split over them")
     bm.add_argument("--seed", type=int, default=0, help="base PRNG seed of every cell")
     bm.add_argument("--shard", default=None, metavar="I/N",
                     help="train only every N-th cell starting at cell I and write results-pI.json (report merges)")

@@ -6,7 +6,9 @@ loss and gradient of its share, and the shares are averaged (``pmean``). For a l
 over equally weighted batch rows this is the whole batch's loss and gradient, equal to one device's
 up to float rounding. ``split_rows(fn, devices, batch_argnum)`` does the same for a row-wise ``fn``
 (each output row depends on its input row only): the shares' outputs are concatenated. Everything
-else in the jitted program stays replicated on every device.
+else in the jitted program stays replicated on every device. ``over_devices(fn, xs)`` splits whole
+independent runs instead: ``jax.vmap(fn)(xs)`` with the rows of ``xs`` (one per seed) spread over the
+process's devices, each device vmapping its own rows.
 
 On a CPU, JAX sees one device unless it is told otherwise before it first runs:
 ``use_cpu_devices(n)`` (what ``marbler-jax train`` calls for ``--hp learner_devices=n``) splits the
@@ -17,10 +19,12 @@ of small GRU matmuls leaves most of a second core idle, which a second device pu
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, PartitionSpec
 
 AXIS = "batch"
+SEEDS_AXIS = "seeds"
 
 
 def use_cpu_devices(n: int) -> None:
@@ -83,4 +87,24 @@ def split_rows(fn, devices: int, batch_argnum: int):
     return wrapped
 
 
-__all__ = ["split_batch", "split_rows", "use_cpu_devices"]
+def over_devices(fn, xs):
+    """``jax.vmap(fn)(xs)`` with the leading axis of ``xs`` (``[S, ...]`` leaves: one row per seed) split
+    over ``min(S, local devices)`` devices, each vmapping its share; the outputs are ``[S, ...]`` like
+    vmap's, equal to them up to float rounding. ``S`` not divisible by the device count is padded by
+    repeating the last row, whose duplicate results are dropped. ``fn`` must not itself split over
+    devices (:func:`split_batch`)."""
+    devices = jax.local_devices()
+    rows = jax.tree_util.tree_leaves(xs)[0].shape[0]
+    count = min(rows, len(devices))
+    if count == 1:
+        return jax.vmap(fn)(xs)
+    pad = -rows % count
+    if pad:
+        xs = jax.tree_util.tree_map(lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)]), xs)
+    mesh = Mesh(np.array(devices[:count]), (SEEDS_AXIS,))
+    out = jax.shard_map(jax.vmap(fn), mesh=mesh, in_specs=PartitionSpec(SEEDS_AXIS),
+                        out_specs=PartitionSpec(SEEDS_AXIS), check_vma=False)(xs)
+    return jax.tree_util.tree_map(lambda x: x[:rows], out) if pad else out
+
+
+__all__ = ["split_batch", "split_rows", "over_devices", "use_cpu_devices"]

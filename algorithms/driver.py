@@ -30,6 +30,7 @@ from marbler_jax.registry import canonical_name
 from marbler_jax.scenarios.base import renamed_keys
 from . import checkpoints, ippo, mappo, qmix, vdn
 from .checkpoints import atomic_write
+from .data_parallel import over_devices
 from .hang_guard import HangGuard, hang_message
 from marbler_jax.rollout import batched_rollout, episode_stats, first_episode_metrics, make_rollout
 
@@ -97,7 +98,7 @@ def evaluate(env, policy, episodes: int, key) -> dict:
 
 
 # How ``train`` maps a function over the leading seed axis of its runner state.
-SEED_BATCHING = {"vmap": lambda fn, xs: jax.vmap(fn)(xs), "map": jax.lax.map}
+SEED_BATCHING = {"vmap": lambda fn, xs: jax.vmap(fn)(xs), "map": jax.lax.map, "devices": over_devices}
 
 
 def make_tester(env, greedy_of_params, episodes: int, over_seeds=SEED_BATCHING["vmap"]):
@@ -125,8 +126,10 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
 
     ``seed_batching="vmap"`` (default) vectorizes the seeds (``jax.vmap``: one batch of
     ``seeds x num_envs`` envs, the fastest for small per-seed batches); ``"map"`` runs them one after
-    another inside the program (``jax.lax.map``: the memory of one seed). Both give every seed the
-    same result up to float rounding.
+    another inside the program (``jax.lax.map``: the memory of one seed); ``"devices"`` spreads the
+    seeds over the process's devices, each vmapping its share
+    (:func:`marbler_jax_rl.data_parallel.over_devices`: on a CPU split into several devices with
+    ``use_cpu_devices``, a device per core). All give every seed the same result up to float rounding.
 
     If the process stays idle for ``hang_seconds`` inside a chunk (the jaxlib CPU hang, see
     :mod:`marbler_jax_rl.hang_guard`), ``on_hang(idle_seconds)`` runs on a watcher thread (default: a
@@ -160,6 +163,9 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     if seed_batching not in SEED_BATCHING:
         raise ValueError(f"seed_batching must be one of {list(SEED_BATCHING)}, got {seed_batching!r}")
     over_seeds = SEED_BATCHING[seed_batching]
+    if seed_batching == "devices" and getattr(cfg, "learner_devices", 1) > 1:
+        raise ValueError(f"seed_batching='devices' splits the seeds over the devices; it cannot also split each "
+                         f"gradient step (learner_devices={cfg.learner_devices}): use one or the other")
     if test_episodes < 0:
         raise ValueError(f"test_episodes must be >= 0 (0 = no greedy test), got {test_episodes}")
     if eval_episodes < 0:
@@ -231,8 +237,9 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
 
     def guard():
         return HangGuard(on_hang, hang_seconds) if hang_seconds else contextlib.nullcontext()
+    spread = f" over {min(seeds, jax.local_device_count())} device(s)" if seed_batching == "devices" else ""
     log(f"training {algo} on {scenario}: {num_updates} updates x {steps_per_update} env steps, "
-        f"{seeds} seed(s) in one program, checkpoint every {chunk} updates")
+        f"{seeds} seed(s) in one program{spread}, checkpoint every {chunk} updates")
     t_start, resumed_at = time.perf_counter(), done
     # every program is compiled before the bar starts, so its rate, ETA and sps are the steady state's
     sizes = sorted({min(chunk, num_updates - done), (num_updates - done) % chunk} - {0})

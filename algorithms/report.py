@@ -257,8 +257,8 @@ one program, each seed tested greedily at 20 points of training and then its bes
 over fresh episodes. This file is generated:
 
 ```bash
-marbler-jax benchmark --learner-devices 2 --out results/marbler-table2     # resumable; cells are independent
-marbler-jax benchmark --scenarios discovery foraging rware --learner-devices 2 --out results/marbler-table2
+marbler-jax benchmark --devices 2 --out results/marbler-table2     # resumable; cells are independent
+marbler-jax benchmark --scenarios discovery foraging rware --devices 2 --out results/marbler-table2
 marbler-jax report results/marbler-table2 --results-md RESULTS.md
 ```
 

@@ -13,6 +13,7 @@ Markdown table.
     python scripts/bench_train.py --algos vdn --presets recipe --scenario predator_capture_prey
     python scripts/bench_train.py --algos vdn qmix --presets recipe --seeds 1 5   # seeds vmapped in one program
     python scripts/bench_train.py --algos vdn qmix --presets recipe --learner-devices 1 2   # data-parallel steps
+    python scripts/bench_train.py --algos ippo --presets recipe --seeds 5 --seed-batching vmap devices  # seeds per device
     python scripts/bench_train.py --algos vdn --presets recipe --learner-devices 2 --hp cell=mingru   # preset + overrides
     python scripts/bench_train.py --algos qmix_ns --presets recipe --learner-devices 2 --repeats 6 \
         --variants last_action=true last_action=false        # an A/B of one setting, timed alternately
@@ -40,7 +41,7 @@ from tqdm.auto import tqdm
 
 import marbler_jax
 from marbler_jax_rl.data_parallel import use_cpu_devices
-from marbler_jax_rl.driver import ALGORITHMS, atomic_write, build_config, has_setting
+from marbler_jax_rl.driver import ALGORITHMS, SEED_BATCHING, atomic_write, build_config, has_setting
 from marbler_jax_rl.recipes import settings
 from marbler_jax_rl.cli import parse_overrides
 
@@ -52,7 +53,7 @@ def env_settings(scenario: str) -> frozenset:
 
 
 def prepare(scenario: str, algo: str, preset_name: str, updates: int, seeds: int = 1,
-            learner_devices: int = 1, overrides: dict | None = None) -> dict:
+            learner_devices: int = 1, overrides: dict | None = None, seed_batching: str = "vmap") -> dict:
     """Builds and compiles one configuration's chunk of ``updates`` updates: its row (without timings)
     and ``run() -> None``, which runs the chunk once from the same runner state and waits for it."""
     env_overrides, hp, _ = settings(preset_name, scenario, algo)
@@ -66,12 +67,14 @@ def prepare(scenario: str, algo: str, preset_name: str, updates: int, seeds: int
     cfg = build_config(algo, dict(hp, total_timesteps=10**9))
     trainer = ALGORITHMS[algo][1](env, cfg)
     keys = jax.random.split(jax.random.PRNGKey(0), seeds)
-    runner = jax.block_until_ready(jax.jit(jax.vmap(trainer.init))(keys))   # seeds vmapped, as the driver does
-    chunk = jax.jit(jax.vmap(lambda r: trainer.run(r, updates)))
+    over_seeds = SEED_BATCHING[seed_batching]                                 # as the driver maps the seeds
+    runner = jax.block_until_ready(jax.jit(lambda k: over_seeds(trainer.init, k))(keys))
+    chunk = jax.jit(lambda r: over_seeds(lambda s: trainer.run(s, updates), r))
     t0 = time.perf_counter()
     jax.block_until_ready(chunk(runner))
     compile_s = time.perf_counter() - t0
-    row = dict(scenario=scenario, algo=algo, preset=preset_name, seeds=seeds, learner_devices=learner_devices,
+    row = dict(scenario=scenario, algo=algo, preset=preset_name, seeds=seeds, seed_batching=seed_batching,
+               learner_devices=learner_devices,
                env=env_overrides, hp=hp, updates=updates, env_steps=seeds * updates * trainer.steps_per_update,
                compile_seconds=compile_s)
     return dict(row=row, run=lambda: jax.block_until_ready(chunk(runner)))
@@ -110,6 +113,9 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[1], help="seed counts (vmapped in one program)")
     parser.add_argument("--learner-devices", type=int, nargs="+", default=[1],
                         help="value-based learners: devices each gradient step's batch is split over (CPU devices)")
+    parser.add_argument("--seed-batching", nargs="+", default=["vmap"], choices=list(SEED_BATCHING),
+                        help="how the seeds are mapped (as `marbler-jax train --seed-batching`); devices: one "
+                             "CPU device per core, never combined with --learner-devices > 1")
     parser.add_argument("--hp", action="append", default=[], metavar="KEY=VALUE",
                         help="override a preset hyperparameter (repeatable), e.g. --hp cell=mingru")
     parser.add_argument("--variants", nargs="+", default=[""], metavar="KEY=VALUE[,KEY=VALUE]",
@@ -123,13 +129,14 @@ def main() -> None:
     for key in set(overrides).union(*variants.values()):
         if key not in env_settings(args.scenario) and not any(has_setting(algo, key) for algo in args.algos):
             parser.error(f"--hp/--variants {key}: not a setting of {args.algos} or of the {args.scenario} env")
-    use_cpu_devices(max(args.learner_devices))
-    combos = [(a, p, k, d, v) for a in args.algos for p in args.presets for k in args.seeds
-              for d in args.learner_devices for v in args.variants if d == 1 or has_setting(a, "learner_devices")]
+    use_cpu_devices(max(args.learner_devices + [os.cpu_count() or 1] * ("devices" in args.seed_batching)))
+    combos = [(a, p, k, b, d, v) for a in args.algos for p in args.presets for k in args.seeds
+              for b in args.seed_batching for d in args.learner_devices for v in args.variants
+              if d == 1 or (has_setting(a, "learner_devices") and b != "devices")]
     prepared = []
-    for algo, name, seeds, devices, variant in tqdm(combos, desc="compiling", unit="config"):
+    for algo, name, seeds, batching, devices, variant in tqdm(combos, desc="compiling", unit="config"):
         prepared.append(prepare(args.scenario, algo, name, args.updates, seeds, devices,
-                                dict(overrides, **variants[variant])))
+                                dict(overrides, **variants[variant]), batching))
         prepared[-1]["row"]["variant"] = variant
     rows = time_in_turns(prepared, args.repeats)
     result = dict(machine=platform.processor() or platform.machine(), cpus=os.cpu_count(), devices=jax.device_count(),
@@ -138,11 +145,11 @@ def main() -> None:
     atomic_write(Path(args.out), json.dumps(result, indent=2))
     print(f"\n{args.scenario}, {jax.default_backend()} backend" + (f", overrides {overrides}" if overrides else "")
           + f", best and median of {args.repeats} chunks per row, rows timed in turns\n")
-    print("| algorithm | preset | variant | seeds | learner devices | env steps / update (all seeds) "
+    print("| algorithm | preset | variant | seeds | seed batching | learner devices | env steps / update (all seeds) "
           "| env-steps/s incl. learning (best) | (median) | compile s |")
-    print("|---|---|---|---:|---:|---:|---:|---:|---:|")
+    print("|---|---|---|---:|---|---:|---:|---:|---:|---:|")
     for r in rows:
-        print(f"| {r['algo']} | {r['preset']} | {r['variant'] or '-'} | {r['seeds']} | {r['learner_devices']} | "
+        print(f"| {r['algo']} | {r['preset']} | {r['variant'] or '-'} | {r['seeds']} | {r['seed_batching']} | {r['learner_devices']} | "
               f"{r['env_steps'] // r['updates']:,} | {r['env_steps_per_s']:,.0f} | "
               f"{r['median_env_steps_per_s']:,.0f} | {r['compile_seconds']:.1f} |")
     print(f"\nwritten: {args.out}")

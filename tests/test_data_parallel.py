@@ -70,6 +70,48 @@ RESUME = PRELUDE + textwrap.dedent("""
     print("ok")
 """)
 
+SEEDS_OVER_DEVICES = PRELUDE + textwrap.dedent("""
+    import json
+
+    from marbler_jax_rl.driver import train
+    from tests.helpers import interrupt_at
+
+    # seed_batching="devices": three IPPO seeds on two devices (2 + 1, the last padded) train as vmapped on one
+    # device up to float rounding, greedy tests included; interrupted + resumed == uninterrupted, bit for bit
+    root = sys.argv[1]
+    hp = dict(num_envs=8, num_steps=8, num_minibatches=2, update_epochs=1, hidden=16)
+    common = dict(scenario="simple_navigation", algo="ippo", total_steps=4 * 8 * 8, seeds=3, hp=hp, eval_episodes=0,
+                  checkpoint_every=2, progress=False, log=lambda *a: None, test_episodes=4)
+    train(out=root + "/vmap", **common)
+    train(out=root + "/full", seed_batching="devices", **common)
+    with pytest.raises(KeyboardInterrupt):
+        train(out=root + "/cut", seed_batching="devices", on_chunk=interrupt_at(2), **common)
+    train(out=root + "/cut", seed_batching="devices", resume=True, **common)
+    vmap, full, cut = (np.load(f"{root}/{name}/params.npz") for name in ("vmap", "full", "cut"))
+    assert sorted(full) == sorted(vmap) == sorted(cut)
+    for name in full:
+        assert full[name].shape[0] == 3 and not np.allclose(full[name][1], full[name][2]), name
+        np.testing.assert_array_equal(full[name], cut[name], err_msg=name)
+        np.testing.assert_allclose(full[name], vmap[name], rtol=2e-4, atol=1e-6, err_msg=name)
+    tests = {name: [json.loads(line) for line in open(f"{root}/{name}/tests.jsonl")] for name in ("vmap", "full")}
+    np.testing.assert_allclose(tests["full"][-1]["episodes"]["reward"], tests["vmap"][-1]["episodes"]["reward"],
+                               rtol=1e-3, atol=1e-3)
+    print("ok")
+""")
+
+
+def test_seeds_over_devices_match_vmapped_seeds_and_resume_bit_exactly(tmp_path):
+    run_with_two_devices(SEEDS_OVER_DEVICES, str(tmp_path))
+
+
+def test_seeds_over_devices_with_a_split_learner_is_refused(tmp_path):
+    from marbler_jax_rl.driver import train
+
+    with pytest.raises(ValueError, match=r"seed_batching='devices' splits the seeds .* \(learner_devices=2\)"):
+        train("simple_navigation", "vdn", 64, 2, tmp_path / "run", hp=dict(learner_devices=2, batch_size=8),
+              seed_batching="devices", progress=False)
+    assert not (tmp_path / "run").exists()
+
 
 def test_two_devices_match_one():
     run_with_two_devices(MATCH_ONE_DEVICE, "per_update")
