@@ -1,6 +1,7 @@
 """``marbler-jax benchmark``: MARBLER's Table II grid trained with the recipes, several seeds per cell.
 
-Each cell (scenario x algorithm) trains its seeds in one program (vmapped) with the algorithm's recipe
+Each cell (scenario x algorithm) trains its seeds in one program (vmapped; with ``devices > 1`` spread
+over the process's local devices, see :func:`run_benchmark`) with the algorithm's recipe
 (:mod:`marbler_jax_rl.recipes`) into ``OUT/runs/<scenario>/<algo>``, tests every seed greedily at
 ``eval_points`` evenly spaced points of training (``test_episodes`` episodes each, the same initial
 states at every point) and ends with the *absolute metric*: each seed's best checkpoint (by test
