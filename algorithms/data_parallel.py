@@ -12,10 +12,9 @@ process's devices, each device vmapping its own rows.
 
 On a CPU, JAX sees one device unless it is told otherwise before it first runs:
 ``use_cpu_devices(n)`` (what ``marbler-jax train`` calls for ``--hp learner_devices=n`` and, with one
-device per core, for ``--seed-batching devices``) splits the
-host into ``n`` CPU devices, each running its share on its own thread: a single-device gradient step
-of small GRU matmuls leaves most of a second core idle, which a second device puts to work
-(BENCHMARKS.md).
+device per core, for ``--seed-batching devices``) splits the host into ``n`` CPU devices, each running
+its share on its own thread: a single-device gradient step of small GRU matmuls leaves most of a second
+core idle, which a second device puts to work (BENCHMARKS.md).
 """
 from __future__ import annotations
 
