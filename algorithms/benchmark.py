@@ -34,8 +34,8 @@ import jax
 import numpy as np
 
 import marbler_jax
-from .driver import (ALGORITHMS, TESTS_FILE, atomic_write, build_config, has_setting, make_tester,
-                     seed_best_scores, train)
+from .driver import (ALGORITHMS, TESTS_FILE, atomic_write, build_config, changed_settings, has_setting,
+                     make_tester, run_config, seed_best_scores, train)
 from .recipes import recipe, settings_digest
 from marbler_jax.registry import canonical_name
 
@@ -102,6 +102,30 @@ def add_cell(path: Path, scenario: str, algo: str, runs: dict) -> dict:
         os.close(folder)         # closing the descriptor releases the lock
 
 
+def cell_settings(chosen, scenario: str, total_steps: int | None = None,
+                  env_overrides: dict | None = None) -> tuple[dict, dict, int]:
+    """``(env_overrides, hyperparameters, steps)`` a cell trains with: recipe ``chosen`` on ``scenario``,
+    its step budget replaced by ``total_steps`` and ``env_overrides`` on top of its env settings where given."""
+    env, hp, steps = chosen.settings(scenario)
+    return dict(env, **(env_overrides or {})), hp, int(total_steps or steps)
+
+
+def cell_digest(runs: dict) -> str | None:
+    """The settings digest (:func:`marbler_jax_rl.recipes.settings_digest`) a results cell was made with;
+    ``None`` where the file does not say."""
+    return next(iter(runs.values()))[ABSOLUTE].get("recipe", [None])[0]
+
+
+def set_aside(run: Path) -> Path:
+    """Rename the run folder ``run`` to the first free ``<name>.set-aside-<k>`` beside it; returns the new path."""
+    k = 1
+    while run.with_name(f"{run.name}.set-aside-{k}").exists():
+        k += 1
+    aside = run.with_name(f"{run.name}.set-aside-{k}")
+    run.rename(aside)
+    return aside
+
+
 def finished_cells(results: dict) -> set[tuple[str, str]]:
     """``{(scenario, algo)}`` the results hold."""
     return {(task, algo) for task, algos in results.get(ENV_NAME, {}).items() for algo in algos}
@@ -153,13 +177,15 @@ def cell_runs(run: Path, env, greedy_of_params, seeds: int, absolute_episodes: i
 def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS, seeds: int = 5,
                   total_steps: int | None = None, eval_points: int = 20, test_episodes: int = 64,
                   absolute_factor: int = 10, devices: int = 1, seed: int = 0, progress: bool = True,
-                  process_index: int = 0, process_count: int = 1, recipes=None, log=print, on_chunk=None) -> dict:
+                  process_index: int = 0, process_count: int = 1, recipes=None, log=print, on_chunk=None,
+                  env_overrides: dict | None = None) -> dict:
     """Train and evaluate this process's share of the grid into ``out``; returns its results dict.
     ``devices > 1`` spreads each cell over that many devices (on a CPU, ask for them with
     :func:`marbler_jax_rl.data_parallel.use_cpu_devices` first): value-based algorithms split each gradient
     step (``learner_devices``), PPO algorithms split the seeds (``seed_batching="devices"``); either way
     every seed trains as on one device, up to float rounding.
-    ``recipes``: ``{algo: Recipe}`` instead of :data:`marbler_jax_rl.recipes.RECIPES`."""
+    ``recipes``: ``{algo: Recipe}`` instead of :data:`marbler_jax_rl.recipes.RECIPES`; ``env_overrides``:
+    env settings on top of every recipe's (e.g. ``{"control_period": 1}``)."""
     recipes = dict(recipes or {})
 
     def recipe_of(algo):
@@ -172,30 +198,37 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
     if total_steps is not None and total_steps < 1:
         raise ValueError(f"total_steps must be >= 1, got {total_steps}")
     cells = grid(algos, scenarios, process_index, process_count)
+    for scenario in {s for s, _ in cells} if env_overrides else ():
+        marbler_jax.make(scenario, **env_overrides)      # a bad setting fails here, before any cell trains
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / results_name(process_index, process_count)
     results = json.loads(path.read_text()) if path.exists() else {}
-    done = finished_cells(results)
-    todo = [c for c in cells if c not in done]
-    log(f"benchmark: {len(cells)} cell(s) for this process, {len(cells) - len(todo)} already in {path}")
+    digests = {(s, a): settings_digest(*cell_settings(recipe_of(a), s, total_steps, env_overrides)) for s, a in cells}
+    held = {cell: cell_digest(results[ENV_NAME][cell[0]][cell[1]]) for cell in finished_cells(results) if cell in digests}
+    todo = [c for c in cells if held.get(c) != digests[c]]
+    redo = sum(c in held for c in todo)
+    log(f"benchmark: {len(cells)} cell(s) for this process, {len(cells) - len(todo)} already in {path}"
+        + (f"; {redo} of its cells were made with other settings and train again" if redo else ""))
     spent_steps, spent_seconds = 0, 0.0
-    budgets = [int(total_steps or recipe_of(a).total_steps(s)) * seeds for s, a in todo]
+    budgets = [cell_settings(recipe_of(a), s, total_steps, env_overrides)[2] * seeds for s, a in todo]
     for i, (scenario, algo) in enumerate(todo):
         k = len(cells) - len(todo) + i + 1
-        env_overrides, hp, steps = recipe_of(algo).settings(scenario)
-        steps = int(total_steps or steps)
-        digest = settings_digest(env_overrides, hp, steps)
+        env_settings, hp, steps = cell_settings(recipe_of(algo), scenario, total_steps, env_overrides)
+        digest = digests[scenario, algo]
         split_steps = devices > 1 and has_setting(algo, "learner_devices")
         if split_steps:
             hp["learner_devices"] = devices
-        env = marbler_jax.make(scenario, **env_overrides)
+        env = marbler_jax.make(scenario, **env_settings)
         cfg = build_config(algo, dict(hp, total_timesteps=steps))
         updates = ALGORITHMS[algo][1](env, cfg).num_updates
         eta = f", ETA {sum(budgets[i:]) * spent_seconds / spent_steps / 3600:.1f} h" if spent_steps else ""
         log(f"cell {k}/{len(cells)}: {algo} on {scenario}, {seeds} seed(s) x {steps:,} env steps{eta}")
         run = out / "runs" / scenario / algo
         resume = (run / "config.json").exists()
+        if resume and changed_settings(run, run_config(scenario, algo, seeds, seed, env, cfg, test_episodes), env):
+            log(f"{run} holds a run with other settings: moved to {set_aside(run)}")
+            resume = False
         clock = WallClock(run, resume)
 
         def chunk_saved(update):
@@ -203,7 +236,7 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
             if on_chunk is not None:
                 on_chunk(update)
 
-        train(scenario, algo, steps, seeds, run, env_overrides=env_overrides, hp=hp, eval_episodes=0,
+        train(scenario, algo, steps, seeds, run, env_overrides=env_settings, hp=hp, eval_episodes=0,
               checkpoint_every=max(1, updates // eval_points), resume=resume, seed=seed,
               progress=progress, log=log, test_episodes=test_episodes, on_chunk=chunk_saved,
               seed_batching="devices" if devices > 1 and not split_steps else "vmap")

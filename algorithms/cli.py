@@ -235,7 +235,7 @@ def _benchmark(args) -> int:
     total = int(float(args.total_steps)) if args.total_steps else None
     run_benchmark(args.out, args.algos, args.scenarios, args.seeds, total, args.eval_points, args.test_episodes,
                   args.absolute_factor, args.devices, args.seed, progress=not args.no_progress,
-                  process_index=shard[0], process_count=shard[1])
+                  process_index=shard[0], process_count=shard[1], env_overrides=parse_overrides(args.set))
     print(f"results: {args.out}; tables and curves: marbler-jax report {args.out}")
     return 0
 
@@ -566,6 +566,9 @@ def build_parser() -> argparse.ArgumentParser:
     bm.add_argument("--seeds", type=int, default=5, help="seeds per cell, trained in one vmapped program")
     bm.add_argument("--out", default="results/marbler-table2", help="results folder (results.json, runs/)")
     bm.add_argument("--total-steps", default=None, help="env steps per seed for every cell (default: each recipe's)")
+    bm.add_argument("--set", action="append", metavar="KEY=VALUE",
+                    help="env config override for every cell, on top of the recipe's (repeatable), e.g. "
+                         "control_period=1; the report marks such cells as trained off the recipe")
     bm.add_argument("--eval-points", type=int, default=20, help="greedy tests during training")
     bm.add_argument("--test-episodes", type=int, default=64, help="episodes per seed at each test")
     bm.add_argument("--absolute-factor", type=int, default=10,

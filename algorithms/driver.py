@@ -177,22 +177,14 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     out = Path(out).absolute()
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} is a file; give a folder for the run")
-    config = dict(scenario=scenario, algo=algo, seeds=seeds, seed=seed, env=dataclasses.asdict(env.config),
-                  algorithm=dataclasses.asdict(cfg), test_episodes=test_episodes)
+    config = run_config(scenario, algo, seeds, seed, env, cfg, test_episodes)
     config_json = json.dumps(config, indent=2)
     checkpoint_dir = out / "checkpoints"
     if resume:
         if not (out / "config.json").exists():
             raise ValueError(f"--resume: {out} has no config.json (nothing to resume)")
-        saved = json.loads((out / "config.json").read_text())
-        saved.setdefault("test_episodes", 0)       # run folders from before the greedy tests
-        saved["env"] = renamed_keys(saved.get("env", {}))
-        defaults = {f.name: f.default for f in dataclasses.fields(env.config)}
-        for name, value in config["env"].items():  # env settings added since the run was saved, at their defaults
-            if name not in saved.get("env", {}) and value == defaults.get(name, dataclasses.MISSING):
-                saved["env"][name] = value
-        if saved != json.loads(config_json):
-            diff = sorted(k for k in config if saved.get(k) != config[k])
+        diff = changed_settings(out, config, env)
+        if diff:
             raise ValueError(f"--resume: the settings differ from the saved run in {diff}; use the same arguments")
     elif checkpoint_dir.exists() and any(checkpoint_dir.iterdir()):
         raise ValueError(f"{out} already holds checkpoints; pass --resume to continue or choose a new --out")
@@ -334,6 +326,31 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         log(f"greedy return {trained['return']:.2f} vs random {random['return']:.2f}; "
             f"collisions {trained['collision_rate']:.1%}, out of bounds {trained['out_of_bounds_rate']:.1%}")
     return result
+
+
+def run_config(scenario: str, algo: str, seeds: int, seed: int, env, cfg, test_episodes: int) -> dict:
+    """What a run folder's ``config.json`` records: the settings a resume must repeat (canonical
+    ``scenario``, ``env``'s and the algorithm config ``cfg``'s every field)."""
+    return json.loads(json.dumps(dict(scenario=scenario, algo=algo, seeds=seeds, seed=seed,
+                                      env=dataclasses.asdict(env.config), algorithm=dataclasses.asdict(cfg),
+                                      test_episodes=test_episodes)))
+
+
+def changed_settings(out: Path, config: dict, env) -> list[str]:
+    """The keys of :func:`run_config`'s ``config`` in which the run saved in ``out`` differs (``[]``: the
+    same run). Env settings added since the run was saved count as equal where ``config`` has them at
+    their defaults, renamed env settings under their current names, and ``learner_devices`` is not
+    compared (it splits the same computation over devices; checkpoints restore on any count)."""
+    saved = json.loads((Path(out) / "config.json").read_text())
+    config = dict(config, algorithm={k: v for k, v in config["algorithm"].items() if k != "learner_devices"})
+    saved["algorithm"] = {k: v for k, v in saved.get("algorithm", {}).items() if k != "learner_devices"}
+    saved.setdefault("test_episodes", 0)       # run folders from before the greedy tests
+    saved["env"] = renamed_keys(saved.get("env", {}))
+    defaults = {f.name: f.default for f in dataclasses.fields(env.config)}
+    for name, value in config["env"].items():
+        if name not in saved["env"] and value == defaults.get(name, dataclasses.MISSING):
+            saved["env"][name] = value
+    return sorted(k for k in set(config) | set(saved) if saved.get(k) != config.get(k))
 
 
 # one line per chunk: the greedy test's per-episode metrics of every seed ({"update", "env_steps",

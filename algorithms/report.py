@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .benchmark import ABSOLUTE, ENV_NAME, JAXROBOTARIUM_SCENARIOS, PAPER_ALGOS, PAPER_SCENARIOS, load_results
+from .benchmark import (ABSOLUTE, ENV_NAME, JAXROBOTARIUM_SCENARIOS, PAPER_ALGOS, PAPER_SCENARIOS, cell_digest,
+                        load_results)
 from .driver import atomic_write
 from .evaluate import PAPER
 from .recipes import RECIPES
@@ -111,8 +112,7 @@ def reached(metric: str, ours: float, paper: float | None) -> bool | None:
 def off_recipe(scenario: str, algo: str, runs: dict) -> bool:
     """Whether a cell was trained with other settings than ``algo``'s current recipe (an earlier recipe, a
     ``--total-steps`` budget, or a results file that does not say)."""
-    made = next(iter(runs.values()))[ABSOLUTE].get("recipe", [None])[0]
-    return algo not in RECIPES or made != RECIPES[algo].digest(scenario)
+    return algo not in RECIPES or cell_digest(runs) != RECIPES[algo].digest(scenario)
 
 
 OFF_RECIPE_MARK = "†"

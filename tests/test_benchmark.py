@@ -181,6 +181,18 @@ def test_tiny_benchmark_writes_resumes_and_reports(tmp_path):
     logs.clear()
     run_benchmark(out, **kwargs)                       # all done: nothing trains
     assert logs == [f"benchmark: 2 cell(s) for this process, 2 already in {out / 'results.json'}"]
+    # another budget and control period are other settings: the IPPO cell trains again, its earlier run
+    # folder set aside, not deleted
+    logs.clear()
+    again = run_benchmark(out, **dict(kwargs, algos=["ippo"], total_steps=2 * 1024, eval_points=2,
+                                      env_overrides={"control_period": 5}))
+    run = out / "runs" / "simple_navigation" / "ippo"
+    assert logs[0].endswith("; 1 of its cells were made with other settings and train again")
+    assert f"{run} holds a run with other settings: moved to {run}.set-aside-1" in logs
+    assert (run.parent / "ippo.set-aside-1" / "params.npz").exists() and (run / "params.npz").exists()
+    assert again[ENV_NAME]["simple_navigation"]["ippo"]["run_0"][ABSOLUTE]["env_steps"] == [2048]
+    assert json.loads((run / "config.json").read_text())["env"]["control_period"] == 5
+    assert again[ENV_NAME]["simple_navigation"]["mappo"] == runs           # the other cell is kept
 
 
 def test_benchmark_rejects_bad_settings(tmp_path):
@@ -188,6 +200,9 @@ def test_benchmark_rejects_bad_settings(tmp_path):
         run_benchmark(tmp_path, seeds=0)
     with pytest.raises(ValueError, match="total_steps must be >= 1"):
         run_benchmark(tmp_path, total_steps=-5)
+    with pytest.raises(ValueError, match=r"control_period must be a positive integer, got 0"):
+        run_benchmark(tmp_path / "bad", scenarios=["warehouse"], env_overrides={"control_period": 0})
+    assert not (tmp_path / "bad").exists()
     assert benchmark.results_name(1, 3) == "results-p1.json" and benchmark.results_name() == "results.json"
 
 

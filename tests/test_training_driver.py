@@ -86,6 +86,20 @@ def test_interrupted_run_resumes_bit_exactly(tmp_path):
     assert env.name == "warehouse" and policy(None, np.zeros((env.num_agents, env.obs_dim), np.float32)).shape == (env.num_agents,)
 
 
+def test_changed_settings_name_what_differs_and_ignore_the_learners_device_count(tmp_path):
+    from marbler_jax_rl.driver import build_config, changed_settings, run_config
+
+    env = marbler_jax.make("predator_capture_prey", control_period=15)
+    config = run_config("predator_capture_prey", "vdn", 2, 0, env, build_config("vdn", dict(learner_devices=2)), 64)
+    (tmp_path / "config.json").write_text(json.dumps(config))
+    assert changed_settings(tmp_path, config, env) == []
+    one_device = run_config("predator_capture_prey", "vdn", 2, 0, env, build_config("vdn", {}), 64)
+    assert changed_settings(tmp_path, one_device, env) == []
+    robots_loop = marbler_jax.make("predator_capture_prey", control_period=1)
+    other = run_config("predator_capture_prey", "vdn", 3, 0, robots_loop, build_config("vdn", dict(lr=1e-4)), 64)
+    assert changed_settings(tmp_path, other, robots_loop) == ["algorithm", "env", "seeds"]
+
+
 def test_vmapped_seeds_match_mapped_seeds(tmp_path):
     """The driver's ``seed_batching="vmap"`` (default) and ``"map"`` train the same seeds (vmap == loop)."""
     env = marbler_jax.make("simple_navigation")
