@@ -8,7 +8,9 @@ user types is the one the benchmark's table reports.
 The algorithms keep the MARBLER paper's definitions, since its Table II compares them: VDN, QMIX and
 MAPPO share one network across robots (with an agent-ID one-hot), QMIX_NS has one per robot, IPPO shares
 one with a critic on each robot's own observation. All train in MARBLER's training control loop
-(controller and barrier recomputed every ``control_period = 15`` ticks).
+(controller and barrier recomputed every ``control_period = 15`` ticks), as the paper's models did. The
+robots' loop (every tick, what a bundle deploys) costs 1.15-1.17x the wall time per env step
+(BENCHMARKS.md); ``marbler-jax benchmark --set control_period=1`` trains cells there to compare.
 
 The value-based recipe learns from parallel fresh episodes the way PQN does (Gallici et al. 2024): 256
 episodes per update, no replay beyond them, each sample used eight times (32 gradient steps of 64
