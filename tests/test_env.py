@@ -167,7 +167,7 @@ def test_bad_scenario_and_actions_are_rejected_clearly():
 
 
 def test_barrier_sweeps_and_relaxation_follow_the_config():
-    """Defaults from control_loop (the env-tuned 1.5 for every team size, not the golden-tuned 1.7 that
+    """Defaults from control_loop (the env's 1.5 for every team size, not the golden cases' 1.7 that
     cbf uses above 10 robots); explicit cbf_iterations / cbf_relaxation reach the solver unchanged."""
     cases = [(dict(), 4, 6), (dict(control_period=15), 4, 12),
              (dict(n_agents=20, start_dist=0.3), 20, 10), (dict(n_agents=20, start_dist=0.3, control_period=15), 20, 20)]
