@@ -204,17 +204,19 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
     out.mkdir(parents=True, exist_ok=True)
     path = out / results_name(process_index, process_count)
     results = json.loads(path.read_text()) if path.exists() else {}
-    digests = {(s, a): settings_digest(*cell_settings(recipe_of(a), s, total_steps, env_overrides)) for s, a in cells}
+    chosen = {(s, a): cell_settings(recipe_of(a), s, total_steps, env_overrides) for s, a in cells}
+    digests = {cell: settings_digest(*chosen[cell]) for cell in cells}
     held = {cell: cell_digest(results[ENV_NAME][cell[0]][cell[1]]) for cell in finished_cells(results) if cell in digests}
     todo = [c for c in cells if held.get(c) != digests[c]]
     redo = sum(c in held for c in todo)
     log(f"benchmark: {len(cells)} cell(s) for this process, {len(cells) - len(todo)} already in {path}"
         + (f"; {redo} of its cells were made with other settings and train again" if redo else ""))
     spent_steps, spent_seconds = 0, 0.0
-    budgets = [cell_settings(recipe_of(a), s, total_steps, env_overrides)[2] * seeds for s, a in todo]
+    budgets = [chosen[cell][2] * seeds for cell in todo]
     for i, (scenario, algo) in enumerate(todo):
         k = len(cells) - len(todo) + i + 1
-        env_settings, hp, steps = cell_settings(recipe_of(algo), scenario, total_steps, env_overrides)
+        env_settings, hp, steps = chosen[scenario, algo]
+        hp = dict(hp)
         digest = digests[scenario, algo]
         split_steps = devices > 1 and has_setting(algo, "learner_devices")
         if split_steps:
