@@ -202,9 +202,10 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     step, restored = checkpoints.restore_latest(manager, runner, warn=log) if resume else (None, None)
     if step is not None:
         done = int(step)
-        # as host arrays (orbax would commit them to one device) they go wherever the training program
-        # runs, e.g. on every device of a data-parallel learner, like a fresh runner's
-        runner = jax.tree_util.tree_map(np.asarray, restored)
+        # laid out like a fresh runner (one device, or the seeds spread over devices), so the resumed run
+        # executes the very programs a fresh one compiles, and every chunk the one compiled up front
+        runner = jax.tree_util.tree_map(lambda saved, fresh: jax.device_put(np.asarray(saved), fresh.sharding),
+                                        restored, runner)
         lines = _lines_upto(out / "metrics.jsonl", done)
         test_lines = _lines_upto(out / TESTS_FILE, done)
         log(f"resuming from update {done} of {num_updates}")

@@ -77,16 +77,24 @@ SEEDS_OVER_DEVICES = PRELUDE + textwrap.dedent("""
     from tests.helpers import interrupt_at
 
     # seed_batching="devices": three IPPO seeds on two devices (2 + 1, the last padded) train as vmapped on one
-    # device up to float rounding, greedy tests included; interrupted + resumed == uninterrupted, bit for bit
+    # device up to float rounding, greedy tests included; interrupted + resumed == uninterrupted, bit for bit,
+    # and the resumed run compiles nothing after its "compiled in" line (the restored state is laid out over
+    # the devices like a fresh one, so every chunk runs the program compiled up front)
     root = sys.argv[1]
     hp = dict(num_envs=8, num_steps=8, num_minibatches=2, update_epochs=1, hidden=16)
-    common = dict(scenario="simple_navigation", algo="ippo", total_steps=4 * 8 * 8, seeds=3, hp=hp, eval_episodes=0,
-                  checkpoint_every=2, progress=False, log=lambda *a: None, test_episodes=4)
-    train(out=root + "/vmap", **common)
-    train(out=root + "/full", seed_batching="devices", **common)
+    common = dict(scenario="simple_navigation", algo="ippo", total_steps=6 * 8 * 8, seeds=3, hp=hp, eval_episodes=0,
+                  checkpoint_every=2, progress=False, test_episodes=4)
+    quiet = lambda *a: None
+    train(out=root + "/vmap", log=quiet, **common)
+    train(out=root + "/full", seed_batching="devices", log=quiet, **common)
     with pytest.raises(KeyboardInterrupt):
-        train(out=root + "/cut", seed_batching="devices", on_chunk=interrupt_at(2), **common)
-    train(out=root + "/cut", seed_batching="devices", resume=True, **common)
+        train(out=root + "/cut", seed_batching="devices", on_chunk=interrupt_at(2), log=quiet, **common)
+    compiles, marks = [], []
+    jax.monitoring.register_event_duration_secs_listener(
+        lambda name, seconds, **kw: compiles.append(name) if name == "/jax/core/compile/backend_compile_duration" else None)
+    train(out=root + "/cut", seed_batching="devices", resume=True, on_chunk=lambda done: marks.append(len(compiles)),
+          log=lambda message: marks.append(len(compiles)) if message.startswith("compiled in") else None, **common)
+    assert len(marks) == 3 and marks[0] > 0 and marks[-1] == marks[0], f"compilations inside the loop: {marks}"
     vmap, full, cut = (np.load(f"{root}/{name}/params.npz") for name in ("vmap", "full", "cut"))
     assert sorted(full) == sorted(vmap) == sorted(cut)
     for name in full:
