@@ -181,18 +181,31 @@ def test_tiny_benchmark_writes_resumes_and_reports(tmp_path):
     logs.clear()
     run_benchmark(out, **kwargs)                       # all done: nothing trains
     assert logs == [f"benchmark: 2 cell(s) for this process, 2 already in {out / 'results.json'}"]
-    # another budget and control period are other settings: the IPPO cell trains again, its earlier run
-    # folder set aside, not deleted
+    # another budget is another setting (as is an env override: test_env_overrides_are_part_of_a_cells_settings):
+    # the IPPO cell trains again, its earlier run folder set aside, not deleted
     logs.clear()
-    again = run_benchmark(out, **dict(kwargs, algos=["ippo"], total_steps=2 * 1024, eval_points=2,
-                                      env_overrides={"control_period": 5}))
+    again = run_benchmark(out, **dict(kwargs, algos=["ippo"], total_steps=2 * 1024, eval_points=2))
     run = out / "runs" / "simple_navigation" / "ippo"
     assert logs[0].endswith("; 1 of its cells were made with other settings and train again")
     assert f"{run} holds a run with other settings: moved to {run}.set-aside-1" in logs
     assert (run.parent / "ippo.set-aside-1" / "params.npz").exists() and (run / "params.npz").exists()
     assert again[ENV_NAME]["simple_navigation"]["ippo"]["run_0"][ABSOLUTE]["env_steps"] == [2048]
-    assert json.loads((run / "config.json").read_text())["env"]["control_period"] == 5
     assert again[ENV_NAME]["simple_navigation"]["mappo"] == runs           # the other cell is kept
+
+
+def test_env_overrides_are_part_of_a_cells_settings():
+    """``benchmark --set KEY=VALUE``: the override replaces the recipe's env setting and changes the cell's
+    digest, so a results cell made without it counts as made with other settings (and trains again)."""
+    from marbler_jax_rl import recipes
+
+    chosen = recipes.recipe("mappo")
+    plain = benchmark.cell_settings(chosen, "predator_capture_prey")
+    robots_loop = benchmark.cell_settings(chosen, "predator_capture_prey", env_overrides={"control_period": 1})
+    assert plain[0] == {"control_period": 15} and robots_loop[0] == {"control_period": 1}
+    assert plain[1:] == robots_loop[1:]
+    assert recipes.settings_digest(*plain) == chosen.digest("predator_capture_prey")
+    assert recipes.settings_digest(*robots_loop) != recipes.settings_digest(*plain)
+    assert benchmark.cell_settings(chosen, "warehouse", total_steps=5)[2] == 5
 
 
 def test_benchmark_rejects_bad_settings(tmp_path):
