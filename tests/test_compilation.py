@@ -68,7 +68,7 @@ def test_a_retraced_program_is_the_same_program():
     instead of compiling it again. A check that bakes a per-trace counter into the program breaks this."""
     env = marbler_jax.make("predator_capture_prey", control_period=15)
     keys = jax.random.split(jax.random.PRNGKey(0), 4)
-    _, state = jax.vmap(env.reset)(keys)
+    _, state = jax.jit(jax.vmap(env.reset))(keys)
     actions = jnp.zeros((4, env.num_agents), jnp.int32)
 
     def program():   # a fresh jit of a fresh function: traced anew, as a new training run's step is

@@ -58,7 +58,7 @@ def test_zero_collisions_and_no_nan_over_1000s_of_random_episodes(env):
 def test_determinism_jit_and_vmap(env_core):
     env = env_core
     keys = jax.random.split(jax.random.PRNGKey(3), 3)
-    obs, state = jax.vmap(env.reset)(keys)
+    obs, state = jax.jit(jax.vmap(env.reset))(keys)
     actions = jax.random.randint(jax.random.PRNGKey(4), (3, env.num_agents), 0, env.num_actions)
     step = jax.jit(jax.vmap(env.step))
     out_a = step(keys, state, actions)
@@ -73,7 +73,7 @@ def test_determinism_jit_and_vmap(env_core):
         np.testing.assert_allclose(out_a[1].poses[i], looped[i][1].poses, atol=1e-5)
         np.testing.assert_allclose(out_a[2][i], looped[i][2], atol=1e-5)
         assert bool(out_a[3][i]) == bool(looped[i][3])
-    obs2, _ = jax.vmap(env.reset)(keys)
+    obs2, _ = jax.jit(jax.vmap(env.reset))(keys)
     np.testing.assert_array_equal(obs, obs2)
     assert obs.dtype == jnp.float32 and obs.shape == (3, env.num_agents, env.obs_dim)
 
@@ -245,7 +245,7 @@ def test_batched_auto_reset_resets_exactly_the_finished_envs(finished):
     env = marbler_jax.make("predator_capture_prey", control_period=15)
     batch = 128
     keys = jax.random.split(jax.random.PRNGKey(5), batch)
-    _, state = jax.vmap(env.reset)(keys)
+    _, state = jax.jit(jax.vmap(env.reset))(keys)
     ending = np.zeros(batch, bool)
     ending[np.random.default_rng(finished).choice(batch, finished, replace=False)] = True
     state = state.replace(step=jnp.where(ending, env.config.max_episode_steps, 3).astype(jnp.int32))
@@ -314,7 +314,7 @@ def test_batch_minor_tick_loop_matches_the_per_refresh_reference(barrier, period
 
     env = marbler_jax.make("material_transport", barrier_certificate=barrier, control_period=period)
     keys = jax.random.split(jax.random.PRNGKey(4), 32)
-    _, state = jax.vmap(env.reset)(keys)
+    _, state = jax.jit(jax.vmap(env.reset))(keys)
     actions = jax.random.randint(jax.random.PRNGKey(5), (32, env.num_agents), 0, env.num_actions)
     goals = jax.vmap(env.scenario.goals)(state.poses, state.scenario, actions)
     poses, collided, outside, dist, _ = jax.jit(jax.vmap(env.run_ticks))(state.poses, goals)

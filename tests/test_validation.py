@@ -97,7 +97,7 @@ def test_out_of_range_actions_raise_eagerly_and_in_the_checked_mode_under_jit():
 
     env = marbler_jax.make("warehouse")
     keys = jax.random.split(jax.random.PRNGKey(0), 2)
-    _, state = jax.vmap(env.reset)(keys)
+    _, state = jax.jit(jax.vmap(env.reset))(keys)
     bad = jnp.array([[0, 1, 2, 3, 4, 0], [0, 1, 2, 7, 4, 0]])
     with pytest.raises(ValueError, match=r"actions must be in \[0, 5\), got \[0, 1, 2, 7, 4, 0\]"):
         env.step(keys[1], jax.tree_util.tree_map(lambda x: x[1], state), bad[1])

@@ -46,7 +46,7 @@ def test_qmix_mixer_starts_with_a_moderate_gain_on_the_agents_q_values():
     from marbler_jax_rl.ippo import global_state
 
     env = marbler_jax.make("predator_capture_prey")
-    obs, _ = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 256))
+    obs, _ = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), 256))
     state, q = global_state(obs), jnp.zeros((256, env.num_agents))
     mixer = qmix.QMixer()
     gains = []
