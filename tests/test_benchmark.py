@@ -251,3 +251,17 @@ def test_shard_flag_is_checked():
     for bad in ("3/3", "a/b", "1"):
         with pytest.raises(ValueError, match="--shard"):
             _parse_shard(bad)
+
+
+def test_shortfalls_show_what_a_cell_misses_and_how_its_seeds_trained():
+    # PCP VDN's paper reward is 33.25: the best seed (best test 33.0) scores 32.5 and collides in 2 % of episodes
+    runs = _runs([[32.0, 33.0], [30.0, 31.0]], best_test=[33.0, 31.0], steps=(100, 200, 300, 400))
+    runs["run_0"][ABSOLUTE]["collisions"] = [0.0, 4.0]             # % per episode: 2 % of the best seed's
+    runs["run_1"]["step_1"]["reward"] = [40.0, 40.0]              # its best test came at 200 of 400 steps
+    table = report.shortfall_table({ENV_NAME: {"predator_capture_prey": {"vdn": runs}}})
+    assert table.startswith("### Cells short of the paper")
+    row = next(line for line in table.splitlines() if line.startswith("| predator_capture_prey | vdn |"))
+    assert "| reward 32.50 < 33.25; collisions 2.00 > 1 |" in row
+    assert "| 32.50, 30.50 | 32.50 (0.0M), 40.00 (0.0M) | 1 of 2 |" in row
+    reaching = _runs([[34.0, 35.0]], steps=(100, 200))
+    assert report.shortfall_table({ENV_NAME: {"predator_capture_prey": {"vdn": reaching}}}) is None
