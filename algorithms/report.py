@@ -111,7 +111,7 @@ def reached(metric: str, ours: float, paper: float | None) -> bool | None:
 
 def off_recipe(scenario: str, algo: str, runs: dict) -> bool:
     """Whether a cell was trained with other settings than ``algo``'s current recipe (an earlier recipe, a
-    ``--total-steps`` budget, or a results file that does not say)."""
+    ``--total-steps`` budget, a ``--set`` env setting, or a results file that does not say)."""
     return algo not in RECIPES or cell_digest(runs) != RECIPES[algo].digest(scenario)
 
 
@@ -272,7 +272,7 @@ def report_markdown(results: dict, reps: int = 2000) -> str:
             parts += [table, ""]
     if any(off_recipe(s, a, tasks[s][a]) for s, a in cells):
         parts += [f"{OFF_RECIPE_MARK} trained with other settings than the algorithm's current recipe (an earlier "
-                  "recipe or another step budget); rerun the cell to compare it with the recipe.", ""]
+                  "recipe, another step budget or another env setting); rerun the cell to compare it with the recipe.", ""]
     shortfalls = shortfall_table(results)
     if shortfalls:
         parts += [shortfalls, ""]
