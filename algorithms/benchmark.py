@@ -185,7 +185,7 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
     step (``learner_devices``), PPO algorithms split the seeds (``seed_batching="devices"``); either way
     every seed trains as on one device, up to float rounding.
     ``recipes``: ``{algo: Recipe}`` instead of :data:`marbler_jax_rl.recipes.RECIPES`; ``env_overrides``:
-    env settings on top of every recipe's (e.g. ``{"control_period": 1}``)."""
+    env settings on top of every recipe's (e.g. ``{"control_period": 15}``)."""
     recipes = dict(recipes or {})
 
     def recipe_of(algo):

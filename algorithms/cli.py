@@ -568,7 +568,7 @@ def build_parser() -> argparse.ArgumentParser:
     bm.add_argument("--total-steps", default=None, help="env steps per seed for every cell (default: each recipe's)")
     bm.add_argument("--set", action="append", metavar="KEY=VALUE",
                     help="env config override for every cell, on top of the recipe's (repeatable), e.g. "
-                         "control_period=1; the report marks such cells as trained off the recipe")
+                         "control_period=15; the report marks such cells as trained off the recipe")
     bm.add_argument("--eval-points", type=int, default=20, help="greedy tests during training")
     bm.add_argument("--test-episodes", type=int, default=64, help="episodes per seed at each test")
     bm.add_argument("--absolute-factor", type=int, default=10,

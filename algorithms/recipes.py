@@ -7,10 +7,12 @@ user types is the one the benchmark's table reports.
 
 The algorithms keep the MARBLER paper's definitions, since its Table II compares them: VDN, QMIX and
 MAPPO share one network across robots (with an agent-ID one-hot), QMIX_NS has one per robot, IPPO shares
-one with a critic on each robot's own observation. All train in MARBLER's training control loop
-(controller and barrier recomputed every ``control_period = 15`` ticks), as the paper's models did. The
-robots' loop (every tick, what a bundle deploys) costs 1.15-1.17x the wall time per env step
-(BENCHMARKS.md); ``marbler-jax benchmark --set control_period=1`` trains cells there to compare.
+one with a critic on each robot's own observation. All train in the robots' loop: controller and barrier
+recomputed every tick (``control_period = 1``), the loop a bundle runs on the robots. Against MARBLER's
+training loop (every 15 ticks, where the paper's models trained) it costs 1.15-1.17x the wall time per
+env step for the same reward, without the collisions that a command held for 15 ticks lets through
+(BENCHMARKS.md, ``results/robots-loop``); ``marbler-jax benchmark --set control_period=15`` trains a cell
+in MARBLER's loop.
 
 The value-based recipe learns from parallel fresh episodes the way PQN does (Gallici et al. 2024): 256
 episodes per update, no replay beyond them, each sample used eight times (32 gradient steps of 64
@@ -21,7 +23,7 @@ action in its input. The PPO recipe is CleanRL/MAPPO's clipped PPO over 64
 parallel envs.
 
 ``paper`` holds the settings of MARBLER's EPyMARL model files instead (``../shared/spec/scenarios.md``
-E.2): GRU 128 agents, gamma 0.99, 5000-episode buffer, one gradient step per collected episode, 5M env
+E.2), in MARBLER's training loop: GRU 128 agents, gamma 0.99, 5000-episode buffer, one gradient step per collected episode, 5M env
 steps (MAPPO 25M). It is for comparison: one gradient step per episode makes it far slower per env step
 (BENCHMARKS.md).
 """
@@ -33,6 +35,8 @@ import json
 from types import MappingProxyType
 from typing import Any, Mapping
 
+from marbler_jax.control_loop import ROBOTS_CONTROL_PERIOD
+
 from .ippo import IPPOConfig
 from .mappo import MAPPOConfig
 from .qmix import QMIXConfig, QMIXNSConfig
@@ -42,8 +46,10 @@ RECIPE_NAMES = ("recipe", "paper", "none")
 """What ``marbler-jax train --preset`` accepts: the algorithm's recipe (default), MARBLER's EPyMARL
 settings, or every setting at the algorithm's and scenario's defaults."""
 
-# MARBLER's training control loop: controller and barrier every 15 ticks (0.5 s).
-TRAINING_ENV = MappingProxyType({"control_period": 15})
+# The robots' loop: controller and barrier every tick, as a bundle runs them on the robots.
+TRAINING_ENV = MappingProxyType({"control_period": ROBOTS_CONTROL_PERIOD})
+# MARBLER's training control loop: controller and barrier every 15 ticks (0.5 s), where its models trained.
+MARBLER_TRAINING_ENV = MappingProxyType({"control_period": 15})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,15 +123,17 @@ _PAPER_Q = dict(hidden=128, max_grad_norm=10.0, gamma=0.99, buffer_size=5000, ba
                 train_steps=8, eps_decay_steps=50_000, learning_starts=32 * 81)
 _PAPER_PPO = dict(hidden=128, lr=2e-4, update_epochs=4, clip_eps=0.2, ent_coef=0.01, num_envs=64, num_steps=64)
 _PAPER_Q_STEPS = 5_000_000
+_MARBLER = dict(env=MARBLER_TRAINING_ENV)
 
 PAPER: Mapping[str, Recipe] = MappingProxyType({
-    "vdn": Recipe("vdn", VDNConfig(**_PAPER_Q, lr=3e-4, target_update_interval=200), default_steps=_PAPER_Q_STEPS),
+    "vdn": Recipe("vdn", VDNConfig(**_PAPER_Q, lr=3e-4, target_update_interval=200), default_steps=_PAPER_Q_STEPS,
+                  **_MARBLER),
     "qmix": Recipe("qmix", QMIXConfig(**_PAPER_Q, lr=1e-4, tau=0.01, mixer_embed=32, hypernet_hidden=64),
-                   default_steps=_PAPER_Q_STEPS),
+                   default_steps=_PAPER_Q_STEPS, **_MARBLER),
     "qmix_ns": Recipe("qmix_ns", QMIXNSConfig(**dict(_PAPER_Q, hidden=64), lr=5e-4, target_update_interval=200),
-                      default_steps=_PAPER_Q_STEPS),
-    "mappo": Recipe("mappo", MAPPOConfig(**_PAPER_PPO), default_steps=25_000_000),
-    "ippo": Recipe("ippo", IPPOConfig(**_PAPER_PPO), default_steps=25_000_000),
+                      default_steps=_PAPER_Q_STEPS, **_MARBLER),
+    "mappo": Recipe("mappo", MAPPOConfig(**_PAPER_PPO), default_steps=25_000_000, **_MARBLER),
+    "ippo": Recipe("ippo", IPPOConfig(**_PAPER_PPO), default_steps=25_000_000, **_MARBLER),
 })
 
 
@@ -150,4 +158,4 @@ def settings(name: str, scenario: str, algo: str) -> tuple[dict, dict, int]:
     return chosen.settings(scenario)
 
 
-__all__ = ["Recipe", "RECIPES", "PAPER", "RECIPE_NAMES", "TRAINING_ENV", "recipe", "settings", "settings_digest"]
+__all__ = ["Recipe", "RECIPES", "PAPER", "RECIPE_NAMES", "TRAINING_ENV", "MARBLER_TRAINING_ENV", "recipe", "settings", "settings_digest"]

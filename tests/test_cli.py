@@ -81,7 +81,7 @@ def test_train_vdn_then_evaluate_best_checkpoint(tmp_path, capsys):
     code = main(TINY_PCP_VDN + ["--out", str(out)])
     assert code == 0
     config = json.loads((out / "config.json").read_text())
-    assert config["env"]["control_period"] == 15 and config["algorithm"]["train_steps"] == 32   # the recipe
+    assert config["env"]["control_period"] == 1 and config["algorithm"]["train_steps"] == 32    # the recipe
     assert main(["evaluate", str(out), "--episodes", "6", "--no-progress"]) == 0
     result = json.loads((out / "eval_best.json").read_text())
     assert result["seeds"] == 2 and len(result["per_seed"]) == 2

@@ -28,7 +28,7 @@ def test_every_algorithm_has_one_typed_recipe_used_on_every_scenario():
         assert all(hp == hps["warehouse"] for hp in hps.values())  # per scenario: the step budget only
         assert not r.why                                           # no scenario-specific entry
         assert build_config(algo, hps["warehouse"]) == dataclasses.replace(r.config)
-        assert settings("recipe", "warehouse", algo)[0] == {"control_period": 15}
+        assert settings("recipe", "warehouse", algo)[0] == {"control_period": 1}    # the robots' loop
 
 
 def test_recipes_keep_the_papers_algorithm_definitions():
