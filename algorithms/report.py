@@ -170,7 +170,8 @@ def shortfall_table(results: dict) -> str | None:
             late = int(np.sum(steps[peaks] > 0.75 * steps[-1]))
             peak_text = ", ".join(f"{_fmt(float(tests[k, i]))} ({steps[i] / 1e6:.1f}M)" for k, i in enumerate(peaks))
             scores = ", ".join(_fmt(float(x)) for x in run_scores(runs, "reward"))
-            rows.append(f"| {scenario} | {algo} | {'; '.join(missed)} | {scores} | {peak_text} | {late} of {len(runs)} |")
+            mark = OFF_RECIPE_MARK if off_recipe(scenario, algo, runs) else ""
+            rows.append(f"| {scenario} | {algo}{mark} | {'; '.join(missed)} | {scores} | {peak_text} | {late} of {len(runs)} |")
     if not rows:
         return None
     head = ["### Cells short of the paper", "",
