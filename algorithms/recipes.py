@@ -23,8 +23,8 @@ action in its input. The PPO recipe is CleanRL/MAPPO's clipped PPO over 64
 parallel envs.
 
 ``paper`` holds the settings of MARBLER's EPyMARL model files instead (``../shared/spec/scenarios.md``
-E.2), in MARBLER's training loop: GRU 128 agents, gamma 0.99, 5000-episode buffer, one gradient step per collected episode, 5M env
-steps (MAPPO 25M). It is for comparison: one gradient step per episode makes it far slower per env step
+E.2), in MARBLER's training loop: GRU 128 agents, gamma 0.99, 5000-episode buffer, one gradient step per
+collected episode, 5M env steps (MAPPO 25M). It is for comparison: one gradient step per episode makes it far slower per env step
 (BENCHMARKS.md).
 """
 from __future__ import annotations
@@ -158,4 +158,5 @@ def settings(name: str, scenario: str, algo: str) -> tuple[dict, dict, int]:
     return chosen.settings(scenario)
 
 
-__all__ = ["Recipe", "RECIPES", "PAPER", "RECIPE_NAMES", "TRAINING_ENV", "MARBLER_TRAINING_ENV", "recipe", "settings", "settings_digest"]
+__all__ = ["Recipe", "RECIPES", "PAPER", "RECIPE_NAMES", "TRAINING_ENV", "MARBLER_TRAINING_ENV", "recipe", "settings",
+           "settings_digest"]
