@@ -37,14 +37,14 @@ def use_cpu_devices(n: int) -> None:
             pass
 
 
-def _mesh(devices: int) -> Mesh:
+def _mesh(devices: int, axis: str = AXIS) -> Mesh:
     available = jax.local_devices()        # this process's own, also under jax.distributed
     if len(available) < devices:
         raise ValueError(
             f"learner_devices={devices} needs {devices} devices but JAX has {len(available)} "
             f"({available[0].platform}); on a CPU call marbler_jax_rl.data_parallel.use_cpu_devices({devices}) "
             f"(or set jax.config 'jax_num_cpu_devices') before JAX first runs -- marbler-jax train does this")
-    return Mesh(np.array(available[:devices]), (AXIS,))
+    return Mesh(np.array(available[:devices]), (axis,))
 
 
 def _specs(args, batch_argnum: int):
@@ -93,16 +93,14 @@ def over_devices(fn, xs):
     vmap's, equal to them up to float rounding. ``S`` not divisible by the device count is padded by
     repeating the last row, whose duplicate results are dropped. ``fn`` must not itself split over
     devices (:func:`split_batch`)."""
-    devices = jax.local_devices()
     rows = jax.tree_util.tree_leaves(xs)[0].shape[0]
-    count = min(rows, len(devices))
+    count = min(rows, jax.local_device_count())
     if count == 1:
         return jax.vmap(fn)(xs)
     pad = -rows % count
     if pad:
         xs = jax.tree_util.tree_map(lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)]), xs)
-    mesh = Mesh(np.array(devices[:count]), (SEEDS_AXIS,))
-    out = jax.shard_map(jax.vmap(fn), mesh=mesh, in_specs=PartitionSpec(SEEDS_AXIS),
+    out = jax.shard_map(jax.vmap(fn), mesh=_mesh(count, SEEDS_AXIS), in_specs=PartitionSpec(SEEDS_AXIS),
                         out_specs=PartitionSpec(SEEDS_AXIS), check_vma=False)(xs)
     return jax.tree_util.tree_map(lambda x: x[:rows], out) if pad else out
 
