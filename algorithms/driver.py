@@ -202,10 +202,12 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     step, restored = checkpoints.restore_latest(manager, runner, warn=log) if resume else (None, None)
     if step is not None:
         done = int(step)
-        # laid out like a fresh runner (one device, or the seeds spread over devices), so the resumed run
-        # executes the very programs a fresh one compiles, and every chunk the one compiled up front
-        runner = jax.tree_util.tree_map(lambda saved, fresh: jax.device_put(np.asarray(saved), fresh.sharding),
-                                        restored, runner)
+        # laid out like a fresh runner, so the resumed run executes the very programs a fresh one compiles, and
+        # every chunk the one compiled up front: the seeds spread over devices where the fresh runner's are,
+        # otherwise uncommitted, free to enter a program that splits its steps over devices (learner_devices)
+        runner = jax.tree_util.tree_map(
+            lambda saved, fresh: jax.device_put(np.asarray(saved), fresh.sharding if fresh.committed else None),
+            restored, runner)
         lines = _lines_upto(out / "metrics.jsonl", done)
         test_lines = _lines_upto(out / TESTS_FILE, done)
         log(f"resuming from update {done} of {num_updates}")

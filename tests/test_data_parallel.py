@@ -130,9 +130,7 @@ def test_two_devices_match_one_with_targets_per_batch():
     run_with_two_devices(MATCH_ONE_DEVICE, "per_batch")
 
 
-# slow: its two halves are in the default suite (test_training_driver's interrupted run resumes bit-exactly,
-# test_two_devices_match_one checks the two-device updates)
-@pytest.mark.slow
+# the benchmark's value-based cells resume this way: the restored state must enter programs split over devices
 def test_two_devices_resume_bit_exactly(tmp_path):
     run_with_two_devices(RESUME, str(tmp_path))
     # this process has one device: the two-device run's checkpoints still restore (no device layout saved)
