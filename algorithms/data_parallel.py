@@ -21,7 +21,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh, PartitionSpec
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 AXIS = "batch"
 SEEDS_AXIS = "seeds"
@@ -45,6 +45,13 @@ def _mesh(devices: int, axis: str = AXIS) -> Mesh:
             f"({available[0].platform}); on a CPU call marbler_jax_rl.data_parallel.use_cpu_devices({devices}) "
             f"(or set jax.config 'jax_num_cpu_devices') before JAX first runs -- marbler-jax train does this")
     return Mesh(np.array(available[:devices]), (axis,))
+
+
+def replicated(devices: int) -> NamedSharding | None:
+    """Where a program split by :func:`split_batch` / :func:`split_rows` over ``devices`` devices keeps
+    the state it returns: whole on every one of them. State laid out so before the program's first call
+    is what every later call gets back, so the program compiles once; ``None`` for one device."""
+    return None if devices == 1 else NamedSharding(_mesh(devices), PartitionSpec())
 
 
 def _specs(args, batch_argnum: int):
@@ -105,4 +112,4 @@ def over_devices(fn, xs):
     return jax.tree_util.tree_map(lambda x: x[:rows], out) if pad else out
 
 
-__all__ = ["split_batch", "split_rows", "over_devices", "use_cpu_devices"]
+__all__ = ["split_batch", "split_rows", "over_devices", "replicated", "use_cpu_devices"]

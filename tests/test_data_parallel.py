@@ -53,16 +53,30 @@ RESUME = PRELUDE + textwrap.dedent("""
     from tests.helpers import interrupt_at
 
     # interrupted + resumed == uninterrupted, bit for bit, with two seeds and two devices; with persistent envs
-    # the checkpoint holds the replay buffer, the envs in mid-episode and the agents' hidden states
+    # the checkpoint holds the replay buffer, the envs in mid-episode and the agents' hidden states. Neither
+    # the fresh nor the resumed run compiles after its "compiled in" line: the state enters the split program
+    # laid out as the program returns it (whole on each device)
     root = sys.argv[1]
     hp = dict(num_envs=4, num_steps=8, buffer_size=16, batch_size=4, learning_starts=0, hidden=16, train_steps=2,
               target_update_interval=3, learner_devices=2, persistent_envs=True)
     common = dict(scenario="predator_capture_prey", algo="vdn", total_steps=4 * 4 * 8, seeds=2, hp=hp,
-                  eval_episodes=0, checkpoint_every=1, progress=False, log=lambda *a: None, test_episodes=0)
-    train(out=root + "/full", **common)
+                  eval_episodes=0, checkpoint_every=1, progress=False, test_episodes=2)
+    compiles = []
+    jax.monitoring.register_event_duration_secs_listener(
+        lambda name, seconds, **kw: compiles.append(name) if name == "/jax/core/compile/backend_compile_duration" else None)
+
+    def counted(**kw):
+        marks = []
+        train(on_chunk=lambda done: marks.append(len(compiles)),
+              log=lambda message: marks.append(len(compiles)) if message.startswith("compiled in") else None, **kw)
+        return marks
+
+    marks = counted(out=root + "/full", **common)
+    assert len(marks) == 5 and marks[0] > 0 and marks[-1] == marks[0], f"compilations inside the loop: {marks}"
     with pytest.raises(KeyboardInterrupt):
-        train(out=root + "/cut", on_chunk=interrupt_at(2), **common)
-    train(out=root + "/cut", resume=True, **common)
+        train(out=root + "/cut", on_chunk=interrupt_at(2), log=lambda *a: None, **common)
+    marks = counted(out=root + "/cut", resume=True, **common)
+    assert len(marks) == 3 and marks[-1] == marks[0], f"compilations inside the resumed loop: {marks}"
     full, cut = np.load(root + "/full/params.npz"), np.load(root + "/cut/params.npz")
     assert sorted(full) == sorted(cut) and any("gru" in name for name in full)
     for name in full:
