@@ -251,6 +251,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         log(f"compiled in {time.perf_counter() - t_start:.1f} s")
     board = tensorboard_writer(out, lines)
     bar = tqdm(total=num_updates, initial=done, unit="update", disable=not progress, dynamic_ncols=True)
+    plotted_at = -np.inf
     while done < num_updates:
         n = min(chunk, num_updates - done)
         t0 = time.perf_counter()
@@ -299,7 +300,9 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
             test_lines.append(json.dumps(dict(update=done, env_steps=done * steps_per_update, episodes={
                 name: [_json_floats(np.round(np.asarray(row, float), 5)) for row in values] for name, values in episodes.items()})))
             atomic_write(out / TESTS_FILE, "\n".join(test_lines) + "\n")
-        plot_learning_curve(out / "metrics.jsonl", out / "learning_curve.png", f"{algo} on {scenario}")
+        if done == num_updates or time.perf_counter() - plotted_at >= PLOT_EVERY_S:
+            plot_learning_curve(out / "metrics.jsonl", out / "learning_curve.png", f"{algo} on {scenario}")
+            plotted_at = time.perf_counter()
         checkpoints.save(manager, done, host)    # last: the checkpoint (with its manifest) commits the chunk
         recent = [json.loads(line)["return_mean"] for line in lines[-n:]]
         recent = [r for r in recent if r is not None]
@@ -362,6 +365,9 @@ def changed_settings(out: Path, config: dict, env) -> list[str]:
 # one line per chunk: the greedy test's per-episode metrics of every seed ({"update", "env_steps",
 # "episodes": {metric: [seeds][episodes]}})
 TESTS_FILE = "tests.jsonl"
+# The learning curve is redrawn after the first and the last chunk and otherwise at most this often [s]:
+# drawing takes a fraction of a second, which short chunks would otherwise spend on it again and again.
+PLOT_EVERY_S = 30.0
 
 
 def _lines_upto(path: Path, update: int) -> list[str]:

@@ -280,10 +280,17 @@ def test_evaluate_reports_the_training_loop_and_the_robots_loop_side_by_side(tmp
     assert "| metric | training loop (period 15) | robots' loop (period 1, what a bundle deploys) |" in table
 
 
-def test_every_training_program_is_compiled_before_the_first_chunk(tmp_path):
+def test_every_training_program_is_compiled_before_the_first_chunk(tmp_path, monkeypatch):
     """The chunk programs (also a shorter last chunk) and the greedy test compile before the loop starts,
     so the progress bar's rate, ETA and sps measure the steady state: no compilation happens between the
-    "compiled in" line and the last chunk."""
+    "compiled in" line and the last chunk. The learning curve is drawn after the first and the last chunk
+    (and between them at most every ``PLOT_EVERY_S``), the last time from every update."""
+    import marbler_jax_rl.driver as driver
+
+    drawn = []
+    monkeypatch.setattr(driver, "PLOT_EVERY_S", 1e9)
+    monkeypatch.setattr(driver, "plot_learning_curve",
+                        lambda metrics, png, title: drawn.append(len(metrics.read_text().splitlines())))
     events, marks = [], []
 
     def on_event(name, seconds, **kwargs):
@@ -303,3 +310,4 @@ def test_every_training_program_is_compiled_before_the_first_chunk(tmp_path):
         jax.monitoring.unregister_event_duration_listener(on_event)
     assert len(marks) == 4 and marks[0] > 0, marks      # compiled; then 3 chunks: 2, 2, 1 updates
     assert marks[-1] == marks[0], f"compilations inside the training loop: {marks}"
+    assert drawn == [2, 5]
