@@ -34,7 +34,7 @@ import jax
 import numpy as np
 
 import marbler_jax
-from .driver import (ALGORITHMS, TESTS_FILE, atomic_write, build_config, changed_settings, has_setting,
+from .driver import (ALGORITHMS, TESTS_FILE, atomic_write, build_config, changed_settings,
                      make_tester, run_config, seed_best_scores, train)
 from .recipes import recipe, settings_digest
 from marbler_jax.registry import canonical_name
@@ -181,9 +181,9 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
                   env_overrides: dict | None = None) -> dict:
     """Train and evaluate this process's share of the grid into ``out``; returns its results dict.
     ``devices > 1`` spreads each cell over that many devices (on a CPU, ask for them with
-    :func:`marbler_jax_rl.data_parallel.use_cpu_devices` first): value-based algorithms split each gradient
-    step (``learner_devices``), PPO algorithms split the seeds (``seed_batching="devices"``); either way
-    every seed trains as on one device, up to float rounding.
+    :func:`marbler_jax_rl.data_parallel.use_cpu_devices` first) through the algorithm's
+    ``learner_devices``: value-based algorithms split each gradient step, PPO algorithms each rollout's
+    envs and each minibatch; either way every seed trains as on one device, up to float rounding.
     ``recipes``: ``{algo: Recipe}`` instead of :data:`marbler_jax_rl.recipes.RECIPES`; ``env_overrides``:
     env settings on top of every recipe's (e.g. ``{"control_period": 15}``)."""
     recipes = dict(recipes or {})
@@ -197,6 +197,10 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
             raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
     if total_steps is not None and total_steps < 1:
         raise ValueError(f"total_steps must be >= 1, got {total_steps}")
+    if devices > jax.local_device_count():
+        raise ValueError(f"devices={devices} but this process has {jax.local_device_count()} JAX device(s) "
+                         f"({jax.local_devices()[0].platform}); on a CPU ask for them first with "
+                         f"marbler_jax_rl.data_parallel.use_cpu_devices({devices}) (marbler-jax benchmark does)")
     cells = grid(algos, scenarios, process_index, process_count)
     for scenario in {s for s, _ in cells} if env_overrides else ():
         marbler_jax.make(scenario, **env_overrides)      # a bad setting fails here, before any cell trains
@@ -218,8 +222,7 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
         env_settings, hp, steps = chosen[scenario, algo]
         hp = dict(hp)
         digest = digests[scenario, algo]
-        split_steps = devices > 1 and has_setting(algo, "learner_devices")
-        if split_steps:
+        if devices > 1:
             hp["learner_devices"] = devices
         env = marbler_jax.make(scenario, **env_settings)
         cfg = build_config(algo, dict(hp, total_timesteps=steps))
@@ -240,8 +243,7 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
 
         train(scenario, algo, steps, seeds, run, env_overrides=env_settings, hp=hp, eval_episodes=0,
               checkpoint_every=max(1, updates // eval_points), resume=resume, seed=seed,
-              progress=progress, log=log, test_episodes=test_episodes, on_chunk=chunk_saved,
-              seed_batching="devices" if devices > 1 and not split_steps else "vmap")
+              progress=progress, log=log, test_episodes=test_episodes, on_chunk=chunk_saved)
         greedy = ALGORITHMS[algo][2]
         runs = cell_runs(run, env, lambda p: greedy(env, cfg, p), seeds, absolute_factor * test_episodes,
                          jax.random.PRNGKey(seed + 2024), digest)

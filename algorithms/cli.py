@@ -576,7 +576,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "--test-episodes episodes")
     bm.add_argument("--devices", "--learner-devices", dest="devices", type=int, default=1,
                     help="devices each cell is spread over (on a CPU, one per core: 2 on a 2-core CPU): "
-                         "value-based gradient steps or PPO seeds are split over them")
+                         "value-based cells split each gradient step over them, PPO cells each rollout's envs and "
+                         "each minibatch")
     bm.add_argument("--seed", type=int, default=0, help="base PRNG seed of every cell")
     bm.add_argument("--shard", default=None, metavar="I/N",
                     help="train only every N-th cell starting at cell I and write results-pI.json (report merges)")

@@ -6,7 +6,9 @@ loss and gradient of its share, and the shares are averaged (``pmean``). For a l
 over equally weighted batch rows this is the whole batch's loss and gradient, equal to one device's
 up to float rounding. ``split_rows(fn, devices, batch_argnum)`` does the same for a row-wise ``fn``
 (each output row depends on its input row only): the shares' outputs are concatenated. Everything
-else in the jitted program stays replicated on every device. ``over_devices(fn, xs)`` splits whole
+else in the jitted program stays replicated on every device. ``rows_over(devices)`` lays arrays' rows
+over the devices and lets XLA split whatever computes with them (PPO: the envs of the rollout and the
+samples of each minibatch). ``over_devices(fn, xs)`` splits whole
 independent runs instead: ``jax.vmap(fn)(xs)`` with the rows of ``xs`` (one per seed) spread over the
 process's devices, each device vmapping its own rows.
 
@@ -47,11 +49,26 @@ def _mesh(devices: int, axis: str = AXIS) -> Mesh:
     return Mesh(np.array(available[:devices]), (axis,))
 
 
-def replicated(devices: int) -> NamedSharding | None:
-    """Where a program split by :func:`split_batch` / :func:`split_rows` over ``devices`` devices keeps
-    the state it returns: whole on every one of them. State laid out so before the program's first call
-    is what every later call gets back, so the program compiles once; ``None`` for one device."""
-    return None if devices == 1 else NamedSharding(_mesh(devices), PartitionSpec())
+def whole_on(devices: int):
+    """``place(tree)``: every leaf whole on each of ``devices`` devices inside a jitted program (the
+    identity for one device). A program split by :func:`split_batch` / :func:`split_rows` returns its
+    state laid out so; its initial state laid out the same way enters it as every later call's does, so
+    the program compiles once."""
+    if devices == 1:
+        return lambda tree: tree
+    whole = NamedSharding(_mesh(devices), PartitionSpec())
+    return lambda tree: jax.tree_util.tree_map(lambda x: jax.lax.with_sharding_constraint(x, whole), tree)
+
+
+def rows_over(devices: int):
+    """``spread(tree)``: every leaf's leading axis (its rows: envs, samples) laid over ``devices``
+    devices inside a jitted program, the rest of the program left to XLA's partitioner; the identity for
+    one device. What is computed is unchanged, so a program spread this way gives one device's results up
+    to float rounding (its random draws too: JAX's random bits do not depend on the layout)."""
+    if devices == 1:
+        return lambda tree: tree
+    rows = NamedSharding(_mesh(devices), PartitionSpec(AXIS))
+    return lambda tree: jax.tree_util.tree_map(lambda x: jax.lax.with_sharding_constraint(x, rows), tree)
 
 
 def _specs(args, batch_argnum: int):
@@ -112,4 +129,4 @@ def over_devices(fn, xs):
     return jax.tree_util.tree_map(lambda x: x[:rows], out) if pad else out
 
 
-__all__ = ["split_batch", "split_rows", "over_devices", "replicated", "use_cpu_devices"]
+__all__ = ["split_batch", "split_rows", "over_devices", "rows_over", "whole_on", "use_cpu_devices"]

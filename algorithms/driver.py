@@ -30,7 +30,7 @@ from marbler_jax.registry import canonical_name
 from marbler_jax.scenarios.base import renamed_keys
 from . import checkpoints, ippo, mappo, qmix, vdn
 from .checkpoints import atomic_write
-from .data_parallel import over_devices, replicated
+from .data_parallel import over_devices
 from .hang_guard import HangGuard, hang_message
 from marbler_jax.rollout import batched_rollout, episode_stats, first_episode_metrics, make_rollout
 
@@ -53,7 +53,7 @@ ALGORITHM_SUMMARIES = {
 
 
 def has_setting(algo: str, name: str) -> bool:
-    """Whether ``algo``'s config has the setting ``name`` (e.g. ``learner_devices``: value-based only)."""
+    """Whether ``algo``'s config has the setting ``name`` (e.g. ``learner_devices``)."""
     return name in {f.name for f in dataclasses.fields(ALGORITHMS[algo][0])}
 
 
@@ -194,9 +194,6 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     trainer = make_train(env, cfg)
     num_updates, steps_per_update = trainer.num_updates, trainer.steps_per_update
     runner = jax.jit(lambda keys: over_seeds(trainer.init, keys))(jax.random.split(jax.random.PRNGKey(seed), seeds))
-    layout = replicated(getattr(cfg, "learner_devices", 1))
-    if layout is not None:       # as the split learner returns it: its chunk program is compiled once, up front
-        runner = jax.device_put(runner, layout)
     options = ocp.CheckpointManagerOptions(max_to_keep=keep, enable_async_checkpointing=False)
     manager = ocp.CheckpointManager(checkpoint_dir, options=options)
     best_manager = ocp.CheckpointManager(out / "best", options=ocp.CheckpointManagerOptions(
@@ -205,9 +202,9 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     step, restored = checkpoints.restore_latest(manager, runner, warn=log) if resume else (None, None)
     if step is not None:
         done = int(step)
-        # laid out like a fresh runner (one device, the seeds spread over devices, or whole on each of the
-        # learner's devices), so the resumed run executes the very programs a fresh one compiles, and every
-        # chunk the one compiled up front
+        # laid out like a fresh runner (one device, the seeds spread over devices, or as a learner split over
+        # devices lays out its state), so the resumed run executes the very programs a fresh one compiles,
+        # and every chunk the one compiled up front
         runner = jax.tree_util.tree_map(
             lambda saved, fresh: jax.device_put(np.asarray(saved), fresh.sharding if fresh.committed else None),
             restored, runner)

@@ -10,7 +10,8 @@ rolls out ``num_steps`` steps of ``num_envs`` auto-resetting envs, computes per-
 ``update_epochs`` epochs of clipped-surrogate SGD over ``num_minibatches`` minibatches (Adam,
 global-norm clipping, linear learning-rate annealing). Agents share parameters (with an agent-ID
 one-hot appended to each observation) unless ``shared=False``, in which case every agent has its own
-network, vmapped over agents.
+network, vmapped over agents. ``learner_devices > 1`` splits each rollout's envs and each minibatch's
+samples over that many devices of this host (:func:`marbler_jax_rl.data_parallel.rows_over`).
 
 Metrics per update (arrays ``[num_updates]``): ``return`` (mean team return of the episodes that
 finished during the rollout; NaN if none did), ``length``, ``collision_rate``, ``out_of_bounds_rate``,
@@ -25,6 +26,7 @@ import jax.numpy as jnp
 import optax
 
 from .common import episode_info, rollout_metrics
+from .data_parallel import rows_over
 from .networks import ActorCritic, apply_agents, init_agents, with_agent_ids
 
 
@@ -53,6 +55,8 @@ class IPPOConfig:
         agent_ids: append a one-hot robot ID to each robot's input.
         critic_input: "local": the critic sees the robot's own observation (IPPO); "global": every
             robot's observation (MAPPO).
+        learner_devices: > 1: the rollout's envs and each minibatch's samples are split over this many
+            devices (the same updates as one device, up to float rounding).
     """
 
     total_timesteps: int = 500_000
@@ -74,13 +78,15 @@ class IPPOConfig:
     shared: bool = True
     agent_ids: bool = True
     critic_input: str = "local"
+    learner_devices: int = 1
 
     @property
     def num_updates(self) -> int:
         return max(1, self.total_timesteps // (self.num_envs * self.num_steps))
 
     def validate(self) -> None:
-        for name in ("total_timesteps", "num_envs", "num_steps", "update_epochs", "num_minibatches", "hidden", "layers"):
+        for name in ("total_timesteps", "num_envs", "num_steps", "update_epochs", "num_minibatches", "hidden", "layers",
+                     "learner_devices"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         for name in ("lr", "clip_eps", "max_grad_norm"):
@@ -98,6 +104,11 @@ class IPPOConfig:
         if (self.num_envs * self.num_steps) % self.num_minibatches:
             raise ValueError(f"num_envs * num_steps = {self.num_envs * self.num_steps} must be divisible by "
                              f"num_minibatches = {self.num_minibatches}")
+        minibatch = self.num_envs * self.num_steps // self.num_minibatches
+        for name, rows in (("num_envs", self.num_envs), ("the minibatch (num_envs * num_steps / num_minibatches)",
+                                                         minibatch)):
+            if rows % self.learner_devices:
+                raise ValueError(f"{name} = {rows} must be divisible by learner_devices = {self.learner_devices}")
 
 
 def policy_inputs(cfg: IPPOConfig, obs):
@@ -126,6 +137,7 @@ def make_train(env, cfg: IPPOConfig):
     run in chunks (for checkpointing and progress reporting).
     """
     cfg.validate()
+    spread = rows_over(cfg.learner_devices)       # envs and minibatch samples over the learner's devices
     network = ActorCritic(env.num_actions, cfg.hidden, cfg.layers, cfg.activation)
     n_agents = env.num_agents
     batch = cfg.num_envs * cfg.num_steps
@@ -143,7 +155,7 @@ def make_train(env, cfg: IPPOConfig):
     def init(key):
         """Runner state ``(params, opt_state, obs, env_state, key, update)`` of a fresh run."""
         key, k_init, k_reset = jax.random.split(key, 3)
-        obs, state = jax.vmap(env.reset)(jax.random.split(k_reset, cfg.num_envs))
+        obs, state = spread(jax.vmap(env.reset)(jax.random.split(k_reset, cfg.num_envs)))
         sample = (policy_inputs(cfg, obs[0])[0], critic_inputs(cfg, obs[0])[0])
         params = init_agents(network, k_init, sample, n_agents, cfg.shared)
         return dict(params=params, opt_state=tx.init(params), obs=obs, env_state=state, key=key,
@@ -157,6 +169,7 @@ def make_train(env, cfg: IPPOConfig):
         logp = jnp.take_along_axis(jax.nn.log_softmax(logits), actions[..., None], -1)[..., 0]
         next_obs, state, rewards, done, info = jax.vmap(env.step)(
             jax.random.split(k_env, cfg.num_envs), state, actions)
+        next_obs, state = spread((next_obs, state))
         transition = dict(obs=obs, actions=actions, logp=logp, value=value, rewards=rewards, done=done,
                           info=episode_info(info))
         return (params, next_obs, state), transition
@@ -202,7 +215,7 @@ def make_train(env, cfg: IPPOConfig):
 
             def sgd(carry, mb):
                 params, opt_state = carry
-                (loss, entropy), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, mb)
+                (loss, entropy), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, spread(mb))
                 updates, opt_state = tx.update(grads, opt_state, params)
                 return (optax.apply_updates(params, updates), opt_state), (loss, entropy)
 

@@ -60,7 +60,7 @@ import optax
 
 from . import buffer as episode_buffer
 from .common import episode_info, rollout_metrics
-from .data_parallel import split_batch, split_rows
+from .data_parallel import split_batch, split_rows, whole_on
 from .ippo import global_state
 from .networks import QAgent, apply_agents, init_agents, with_agent_ids
 from marbler_jax.numpy_policy import CELLS
@@ -353,7 +353,8 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
         if cfg.persistent_envs:    # the envs the first update continues, and each sequence's stored start
             example.update(hidden=hidden, first=jnp.zeros((), bool))
             runner["envs"] = fresh_envs(jax.random.fold_in(k_reset, 1))
-        return dict(runner, buffer=episode_buffer.init(example, cfg.buffer_size))
+        # laid out as the split learner's updates return it, so its programs compile once
+        return whole_on(cfg.learner_devices)(dict(runner, buffer=episode_buffer.init(example, cfg.buffer_size)))
 
     def fresh_envs(key):
         """``num_envs`` envs just reset: ``(obs, env state, agents' hidden state, reset flags)``."""

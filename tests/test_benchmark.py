@@ -132,7 +132,10 @@ def test_tiny_benchmark_writes_resumes_and_reports(tmp_path):
     cell is not trained again and the second resumes from its checkpoint."""
     out, logs = tmp_path / "bench", []
     kwargs = dict(algos=["ippo", "mappo"], scenarios=["simple"], seeds=2, total_steps=3 * 1024, eval_points=3,
-                  test_episodes=4, absolute_factor=2, progress=False, log=logs.append, devices=2)
+                  test_episodes=4, absolute_factor=2, progress=False, log=logs.append)
+    with pytest.raises(ValueError, match=rf"devices={jax.local_device_count() + 1} but this process has "):
+        run_benchmark(out, **dict(kwargs, devices=jax.local_device_count() + 1))
+    assert not out.exists()
     from marbler_jax_rl import recipes
 
     small = {a: recipes.Recipe(a, type(r.config)(num_envs=16, num_steps=64, hidden=16), steps=r.steps)
@@ -161,8 +164,6 @@ def test_tiny_benchmark_writes_resumes_and_reports(tmp_path):
     assert load_results(out) == results
     assert "1 already in" in logs[0] and not any("cell 1/2:" in line for line in logs)
     assert any(line.startswith("resuming from update 1") for line in logs)
-    # devices=2: PPO cells spread their seeds over the process's devices (one here)
-    assert any(f"2 seed(s) in one program over {jax.local_device_count()} device(s)" in line for line in logs)
     assert results[ENV_NAME]["simple_navigation"]["ippo"] == first[ENV_NAME]["simple_navigation"]["ippo"]
     runs = results[ENV_NAME]["simple_navigation"]["mappo"]
     assert sorted(runs) == ["run_0", "run_1"]

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import marbler_jax
-from marbler_jax_rl import vdn
+from marbler_jax_rl import ippo, vdn
 from tests.helpers import run_with_two_devices
 
 PRELUDE = """
@@ -90,39 +90,51 @@ SEEDS_OVER_DEVICES = PRELUDE + textwrap.dedent("""
     from marbler_jax_rl.driver import train
     from tests.helpers import interrupt_at
 
-    # seed_batching="devices": three IPPO seeds on two devices (2 + 1, the last padded) train as vmapped on one
-    # device up to float rounding, greedy tests included; interrupted + resumed == uninterrupted, bit for bit,
-    # and the resumed run compiles nothing after its "compiled in" line (the restored state is laid out over
-    # the devices like a fresh one, so every chunk runs the program compiled up front)
+    # Three IPPO seeds on two devices train as vmapped on one device up to float rounding, greedy tests
+    # included, either way of splitting them: seed_batching="devices" (2 + 1 seeds, the last padded) or
+    # learner_devices=2 (each seed's envs and minibatches split). Interrupted + resumed == uninterrupted, bit
+    # for bit, and neither the fresh nor the resumed run compiles after its "compiled in" line (the state
+    # enters every chunk laid out over the devices as the chunk returns it)
     root = sys.argv[1]
     hp = dict(num_envs=8, num_steps=8, num_minibatches=2, update_epochs=1, hidden=16)
-    common = dict(scenario="simple_navigation", algo="ippo", total_steps=6 * 8 * 8, seeds=3, hp=hp, eval_episodes=0,
+    common = dict(scenario="simple_navigation", algo="ippo", total_steps=6 * 8 * 8, seeds=3, eval_episodes=0,
                   checkpoint_every=2, progress=False, test_episodes=4)
     quiet = lambda *a: None
-    train(out=root + "/vmap", log=quiet, **common)
-    train(out=root + "/full", seed_batching="devices", log=quiet, **common)
-    with pytest.raises(KeyboardInterrupt):
-        train(out=root + "/cut", seed_batching="devices", on_chunk=interrupt_at(2), log=quiet, **common)
-    compiles, marks = [], []
+    compiles = []
     jax.monitoring.register_event_duration_secs_listener(
         lambda name, seconds, **kw: compiles.append(name) if name == "/jax/core/compile/backend_compile_duration" else None)
-    train(out=root + "/cut", seed_batching="devices", resume=True, on_chunk=lambda done: marks.append(len(compiles)),
-          log=lambda message: marks.append(len(compiles)) if message.startswith("compiled in") else None, **common)
-    assert len(marks) == 3 and marks[0] > 0 and marks[-1] == marks[0], f"compilations inside the loop: {marks}"
-    vmap, full, cut = (np.load(f"{root}/{name}/params.npz") for name in ("vmap", "full", "cut"))
-    assert sorted(full) == sorted(vmap) == sorted(cut)
-    for name in full:
-        assert full[name].shape[0] == 3 and not np.allclose(full[name][1], full[name][2]), name
-        np.testing.assert_array_equal(full[name], cut[name], err_msg=name)
-        np.testing.assert_allclose(full[name], vmap[name], rtol=2e-4, atol=1e-6, err_msg=name)
-    tests = {name: [json.loads(line) for line in open(f"{root}/{name}/tests.jsonl")] for name in ("vmap", "full")}
-    np.testing.assert_allclose(tests["full"][-1]["episodes"]["reward"], tests["vmap"][-1]["episodes"]["reward"],
-                               rtol=1e-3, atol=1e-3)
+
+    def counted(**kw):
+        marks = []
+        train(on_chunk=lambda done: marks.append(len(compiles)),
+              log=lambda message: marks.append(len(compiles)) if message.startswith("compiled in") else None, **kw)
+        assert marks[0] > 0 and marks[-1] == marks[0], f"compilations inside the loop: {marks}"
+        return len(marks) - 1     # chunks
+
+    train(out=root + "/vmap", hp=hp, log=quiet, **common)
+    vmap = np.load(f"{root}/vmap/params.npz")
+    vmap_tests = [json.loads(line) for line in open(f"{root}/vmap/tests.jsonl")]
+    for name, split in (("seeds", dict(seed_batching="devices", hp=hp)),
+                        ("envs", dict(hp=dict(hp, learner_devices=2)))):
+        assert counted(out=f"{root}/{name}", **split, **common) == 3
+        with pytest.raises(KeyboardInterrupt):
+            train(out=f"{root}/{name}-cut", on_chunk=interrupt_at(2), log=quiet, **split, **common)
+        assert counted(out=f"{root}/{name}-cut", resume=True, **split, **common) == 2
+        full, cut = np.load(f"{root}/{name}/params.npz"), np.load(f"{root}/{name}-cut/params.npz")
+        assert sorted(full) == sorted(vmap) == sorted(cut)
+        for key in full:
+            assert full[key].shape[0] == 3 and not np.allclose(full[key][1], full[key][2]), (name, key)
+            np.testing.assert_array_equal(full[key], cut[key], err_msg=f"{name}: {key}")
+            np.testing.assert_allclose(full[key], vmap[key], rtol=2e-4, atol=1e-6, err_msg=f"{name}: {key}")
+        tests = [json.loads(line) for line in open(f"{root}/{name}/tests.jsonl")]
+        np.testing.assert_allclose(tests[-1]["episodes"]["reward"], vmap_tests[-1]["episodes"]["reward"],
+                                   rtol=1e-3, atol=1e-3)
     print("ok")
 """)
 
 
-def test_seeds_over_devices_match_vmapped_seeds_and_resume_bit_exactly(tmp_path):
+
+def test_seeds_or_envs_over_devices_match_one_device_and_resume_bit_exactly(tmp_path):
     run_with_two_devices(SEEDS_OVER_DEVICES, str(tmp_path))
 
 
@@ -168,3 +180,10 @@ def test_more_learner_devices_than_jax_has_is_a_clear_error():
         vdn.make_train(env, vdn.VDNConfig(learner_devices=too_many, batch_size=too_many * 4))
     with pytest.raises(ValueError, match=r"batch_size \(32\) must be divisible by learner_devices \(3\)"):
         vdn.VDNConfig(batch_size=32, learner_devices=3).validate()
+    with pytest.raises(ValueError, match=rf"learner_devices={too_many} needs {too_many} devices but JAX has"):
+        ippo.make_train(env, ippo.IPPOConfig(num_envs=too_many * 4, num_minibatches=1, learner_devices=too_many))
+    with pytest.raises(ValueError, match="num_envs = 64 must be divisible by learner_devices = 3"):
+        ippo.IPPOConfig(learner_devices=3).validate()
+    with pytest.raises(ValueError, match=r"the minibatch \(num_envs \* num_steps / num_minibatches\) = 6 must be "
+                                         r"divisible by learner_devices = 4"):
+        ippo.IPPOConfig(num_envs=4, num_steps=3, num_minibatches=2, learner_devices=4).validate()
