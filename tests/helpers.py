@@ -23,6 +23,29 @@ def interrupt_at(update: int):
     return on_chunk
 
 
+def compile_marks(train, **kwargs) -> list[int]:
+    """Runs ``train(**kwargs)`` (the training driver's) and returns how many XLA compilations had happened
+    at its "compiled in" line and after each chunk: equal marks mean nothing compiled inside the loop."""
+    import jax
+
+    compiles, marks = [], []
+
+    def on_event(name, seconds, **kw):
+        if name == "/jax/core/compile/backend_compile_duration":
+            compiles.append(name)
+
+    def log(message):
+        if message.startswith("compiled in"):
+            marks.append(len(compiles))
+
+    jax.monitoring.register_event_duration_secs_listener(on_event)
+    try:
+        train(on_chunk=lambda done: marks.append(len(compiles)), log=log, **kwargs)
+    finally:
+        jax.monitoring.unregister_event_duration_listener(on_event)
+    return marks
+
+
 def tensorboard_steps(folder) -> dict[str, list[int]]:
     """``{tag: [step, ...]}`` over every event file in ``folder`` (TFRecord framing: length, its CRC,
     the serialized ``Event``, its CRC), in file order."""

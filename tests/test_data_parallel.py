@@ -50,7 +50,7 @@ MATCH_ONE_DEVICE = PRELUDE + textwrap.dedent("""
 
 RESUME = PRELUDE + textwrap.dedent("""
     from marbler_jax_rl.driver import train
-    from tests.helpers import interrupt_at
+    from tests.helpers import compile_marks, interrupt_at
 
     # interrupted + resumed == uninterrupted, bit for bit, with two seeds and two devices; with persistent envs
     # the checkpoint holds the replay buffer, the envs in mid-episode and the agents' hidden states. Neither
@@ -61,21 +61,11 @@ RESUME = PRELUDE + textwrap.dedent("""
               target_update_interval=3, learner_devices=2, persistent_envs=True)
     common = dict(scenario="predator_capture_prey", algo="vdn", total_steps=4 * 4 * 8, seeds=2, hp=hp,
                   eval_episodes=0, checkpoint_every=1, progress=False, test_episodes=2)
-    compiles = []
-    jax.monitoring.register_event_duration_secs_listener(
-        lambda name, seconds, **kw: compiles.append(name) if name == "/jax/core/compile/backend_compile_duration" else None)
-
-    def counted(**kw):
-        marks = []
-        train(on_chunk=lambda done: marks.append(len(compiles)),
-              log=lambda message: marks.append(len(compiles)) if message.startswith("compiled in") else None, **kw)
-        return marks
-
-    marks = counted(out=root + "/full", **common)
+    marks = compile_marks(train, out=root + "/full", **common)
     assert len(marks) == 5 and marks[0] > 0 and marks[-1] == marks[0], f"compilations inside the loop: {marks}"
     with pytest.raises(KeyboardInterrupt):
         train(out=root + "/cut", on_chunk=interrupt_at(2), log=lambda *a: None, **common)
-    marks = counted(out=root + "/cut", resume=True, **common)
+    marks = compile_marks(train, out=root + "/cut", resume=True, **common)
     assert len(marks) == 3 and marks[-1] == marks[0], f"compilations inside the resumed loop: {marks}"
     full, cut = np.load(root + "/full/params.npz"), np.load(root + "/cut/params.npz")
     assert sorted(full) == sorted(cut) and any("gru" in name for name in full)
@@ -88,7 +78,7 @@ SEEDS_OVER_DEVICES = PRELUDE + textwrap.dedent("""
     import json
 
     from marbler_jax_rl.driver import train
-    from tests.helpers import interrupt_at
+    from tests.helpers import compile_marks, interrupt_at
 
     # Three IPPO seeds on two devices train as vmapped on one device up to float rounding, greedy tests
     # included, either way of splitting them: seed_batching="devices" (2 + 1 seeds, the last padded) or
@@ -100,26 +90,21 @@ SEEDS_OVER_DEVICES = PRELUDE + textwrap.dedent("""
     common = dict(scenario="simple_navigation", algo="ippo", total_steps=6 * 8 * 8, seeds=3, eval_episodes=0,
                   checkpoint_every=2, progress=False, test_episodes=4)
     quiet = lambda *a: None
-    compiles = []
-    jax.monitoring.register_event_duration_secs_listener(
-        lambda name, seconds, **kw: compiles.append(name) if name == "/jax/core/compile/backend_compile_duration" else None)
 
-    def counted(**kw):
-        marks = []
-        train(on_chunk=lambda done: marks.append(len(compiles)),
-              log=lambda message: marks.append(len(compiles)) if message.startswith("compiled in") else None, **kw)
+    def chunks(**kw):
+        marks = compile_marks(train, **kw)
         assert marks[0] > 0 and marks[-1] == marks[0], f"compilations inside the loop: {marks}"
-        return len(marks) - 1     # chunks
+        return len(marks) - 1
 
     train(out=root + "/vmap", hp=hp, log=quiet, **common)
     vmap = np.load(f"{root}/vmap/params.npz")
     vmap_tests = [json.loads(line) for line in open(f"{root}/vmap/tests.jsonl")]
     for name, split in (("seeds", dict(seed_batching="devices", hp=hp)),
                         ("envs", dict(hp=dict(hp, learner_devices=2)))):
-        assert counted(out=f"{root}/{name}", **split, **common) == 3
+        assert chunks(out=f"{root}/{name}", **split, **common) == 3
         with pytest.raises(KeyboardInterrupt):
             train(out=f"{root}/{name}-cut", on_chunk=interrupt_at(2), log=quiet, **split, **common)
-        assert counted(out=f"{root}/{name}-cut", resume=True, **split, **common) == 2
+        assert chunks(out=f"{root}/{name}-cut", resume=True, **split, **common) == 2
         full, cut = np.load(f"{root}/{name}/params.npz"), np.load(f"{root}/{name}-cut/params.npz")
         assert sorted(full) == sorted(vmap) == sorted(cut)
         for key in full:
@@ -131,7 +116,6 @@ SEEDS_OVER_DEVICES = PRELUDE + textwrap.dedent("""
                                    rtol=1e-3, atol=1e-3)
     print("ok")
 """)
-
 
 
 def test_seeds_or_envs_over_devices_match_one_device_and_resume_bit_exactly(tmp_path):

@@ -11,7 +11,7 @@ import orbax.checkpoint as ocp
 import pytest
 
 import marbler_jax
-from tests.helpers import interrupt_at, tensorboard_steps
+from tests.helpers import compile_marks, interrupt_at, tensorboard_steps
 from marbler_jax_rl.driver import (ALGORITHMS, SEED_BATCHING, keep_improved, load_params, make_tester,
                                   seed_best_scores, train)
 from marbler_jax_rl.run import Run, load_run
@@ -291,23 +291,9 @@ def test_every_training_program_is_compiled_before_the_first_chunk(tmp_path, mon
     monkeypatch.setattr(driver, "PLOT_EVERY_S", 1e9)
     monkeypatch.setattr(driver, "plot_learning_curve",
                         lambda metrics, png, title: drawn.append(len(metrics.read_text().splitlines())))
-    events, marks = [], []
-
-    def on_event(name, seconds, **kwargs):
-        if name == "/jax/core/compile/backend_compile_duration":
-            events.append(name)
-
-    jax.monitoring.register_event_duration_secs_listener(on_event)
-    try:
-        def log(message):
-            if message.startswith("compiled in"):
-                marks.append(len(events))
-
-        # 5 updates in chunks of 2: programs of 2 and 1 updates
-        train(out=tmp_path / "run", on_chunk=lambda done: marks.append(len(events)),
-              **dict(TWO_SEEDS, total_steps=5 * 8 * 8, checkpoint_every=2, log=log))
-    finally:
-        jax.monitoring.unregister_event_duration_listener(on_event)
+    # 5 updates in chunks of 2: programs of 2 and 1 updates
+    settings = {k: v for k, v in TWO_SEEDS.items() if k != "log"}         # compile_marks reads the log
+    marks = compile_marks(train, out=tmp_path / "run", **dict(settings, total_steps=5 * 8 * 8, checkpoint_every=2))
     assert len(marks) == 4 and marks[0] > 0, marks      # compiled; then 3 chunks: 2, 2, 1 updates
     assert marks[-1] == marks[0], f"compilations inside the training loop: {marks}"
     assert drawn == [2, 5]
