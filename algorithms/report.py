@@ -25,11 +25,14 @@ from .recipes import RECIPES
 
 # Table order and direction: True where higher is better.
 METRICS = {"reward": True, "steps": False, "prey_left": False, "material_left": False, "landmarks_left": False,
-           "resources_left": False, "deliveries": True, "collisions": False, "out_of_bounds": False}
+           "resources_left": False, "deliveries": True, "success": True, "collisions": False, "out_of_bounds": False}
+# What is left of a scenario's task at an episode's end (a count); an episode succeeds where none is.
+TASK_LEFT = ("prey_left", "material_left", "landmarks_left", "resources_left")
 TITLES = {"reward": "Reward (team episode return)", "steps": "Steps (episode length; the limit after a violation)",
           "prey_left": "Prey left (Predator Capture Prey)", "material_left": "Material left (Material Transport)",
           "landmarks_left": "Landmarks left (Discovery)", "resources_left": "Resources left (Foraging)",
           "deliveries": "Deliveries (RWARE)",
+          "success": "Success (% of episodes that end with no prey, material, landmarks or resources left)",
           "collisions": "Collisions (% of episodes)", "out_of_bounds": "Out of bounds (% of episodes)"}
 VIOLATION_LIMIT = 1.0        # % of episodes: the benchmark's bound for collisions and out of bounds
 ALGO_ORDER = PAPER_ALGOS
@@ -61,9 +64,19 @@ def _bootstrap(score_dict: dict, func, reps: int, seed: int = 0):
         np.random.set_state(saved)
 
 
+def episode_values(entry: dict, metric: str) -> np.ndarray | None:
+    """``metric`` of every episode in ``entry`` (a run's ``absolute_metrics`` or one test's), None where
+    the scenario has no such metric. ``"success"`` is derived: 100 where nothing of the task is left
+    (:data:`TASK_LEFT`), else 0."""
+    if metric == "success":
+        left = next((key for key in TASK_LEFT if key in entry), None)
+        return None if left is None else 100.0 * (np.asarray(entry[left]) == 0)
+    return np.asarray(entry[metric]) if metric in entry else None
+
+
 def run_scores(runs: dict, metric: str) -> np.ndarray:
     """Each run's mean of ``metric`` over its absolute-metric episodes, ``[runs]``."""
-    return np.array([np.mean(runs[name][ABSOLUTE][metric]) for name in sorted(runs, key=_run_index)])
+    return np.array([np.mean(episode_values(runs[name][ABSOLUTE], metric)) for name in sorted(runs, key=_run_index)])
 
 
 def _run_index(name: str) -> int:
@@ -125,11 +138,11 @@ def metric_table(results: dict, metric: str, reps: int) -> str | None:
     for scenario in _ordered(tasks, SCENARIO_ORDER):
         for algo in _ordered(tasks[scenario], ALGO_ORDER):
             runs = tasks[scenario][algo]
-            if metric not in next(iter(runs.values()))[ABSOLUTE]:
+            if episode_values(next(iter(runs.values()))[ABSOLUTE], metric) is None:
                 continue
             scores = run_scores(runs, metric)
             iqm, low, high = iqm_ci(scores, reps)
-            best = runs[best_seed_run(runs)][ABSOLUTE][metric]
+            best = episode_values(runs[best_seed_run(runs)][ABSOLUTE], metric)
             best_mean = float(np.mean(best))
             paper = PAPER.get(scenario, {}).get(algo, {}).get(metric)
             ok = reached(metric, best_mean, paper[0] if paper else None)
@@ -301,7 +314,9 @@ marbler-jax benchmark --scenarios discovery foraging rware --devices 2 --out res
 marbler-jax report results/marbler-table2 --results-md RESULTS.md
 ```
 
-The second command adds JaxRobotarium's three scenarios (rows without paper values).
+The second command adds JaxRobotarium's three scenarios (rows without paper values). *Success* is the
+share of episodes that end with nothing of the task left (prey, material, landmarks or resources), the
+measure JaxRobotarium reports.
 
 The results file (`results/marbler-table2/results*.json`, marl-eval's layout) holds every test episode of
 every seed; the wall time of each cell is in its runs' `absolute_metrics`.

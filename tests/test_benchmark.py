@@ -112,7 +112,7 @@ def test_report_renders_tables_curves_and_improvement(tmp_path):
         report.report_markdown({})
 
 
-def test_jaxrobotarium_scenarios_follow_the_paper_and_their_task_metric_gets_a_table():
+def test_jaxrobotarium_scenarios_follow_the_paper_and_task_metrics_and_success_get_tables():
     from marbler_jax_rl.recipes import RECIPES
 
     discovery = _runs([[5.0, 6.0], [7.0, 8.0]], recipe=RECIPES["vdn"].digest("discovery"))
@@ -125,6 +125,14 @@ def test_jaxrobotarium_scenarios_follow_the_paper_and_their_task_metric_gets_a_t
     landmarks = report.metric_table(results, "landmarks_left", reps=50)
     assert landmarks.startswith("### Landmarks left (Discovery)")
     assert "| discovery | vdn | 2 | 0.0M | 0.50 [" in landmarks and "predator_capture_prey" not in landmarks
+    # success: the share of episodes with nothing of the task left, over the scenarios that count what is left
+    pcp["run_0"][ABSOLUTE]["prey_left"], pcp["run_1"][ABSOLUTE]["prey_left"] = [0.0], [2.0]
+    results[ENV_NAME]["warehouse"] = {"vdn": _runs([[20.0], [21.0]])}
+    success = report.metric_table(results, "success", reps=50)
+    assert success.startswith("### Success (% of episodes that end with no prey, material, landmarks or resources")
+    assert "| discovery | vdn | 2 | 0.0M | 50.00 [50.00, 50.00] | 50.00 ± 50.00 | — | — |" in success
+    assert "| predator_capture_prey | vdn | 2 | 0.0M | 50.00 [0.00, 100.00] | 0.00 ± 0.00 |" in success  # best: run_1
+    assert "warehouse" not in success
 
 
 def test_tiny_benchmark_writes_resumes_and_reports(tmp_path):
