@@ -165,7 +165,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     over_seeds = SEED_BATCHING[seed_batching]
     if seed_batching == "devices" and getattr(cfg, "learner_devices", 1) > 1:
         raise ValueError(f"seed_batching='devices' splits the seeds over the devices; it cannot also split each "
-                         f"gradient step (learner_devices={cfg.learner_devices}): use one or the other")
+                         f"seed's work (learner_devices={cfg.learner_devices}): use one or the other")
     if test_episodes < 0:
         raise ValueError(f"test_episodes must be >= 0 (0 = no greedy test), got {test_episodes}")
     if eval_episodes < 0:
