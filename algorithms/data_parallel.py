@@ -1,4 +1,4 @@
-"""Data-parallel gradients: one gradient step's batch split over several devices of this host.
+"""Data-parallel learners: one seed's work split over several devices of this host.
 
 ``split_batch(grad_fn, devices, batch_argnum)`` wraps ``grad_fn(*args) -> (loss, grads)`` so that each
 of ``devices`` devices takes an equal share of the batch argument (its leading axis), computes the
@@ -6,17 +6,17 @@ loss and gradient of its share, and the shares are averaged (``pmean``). For a l
 over equally weighted batch rows this is the whole batch's loss and gradient, equal to one device's
 up to float rounding. ``split_rows(fn, devices, batch_argnum)`` does the same for a row-wise ``fn``
 (each output row depends on its input row only): the shares' outputs are concatenated. Everything
-else in the jitted program stays replicated on every device. ``rows_over(devices)`` lays arrays' rows
-over the devices and lets XLA split whatever computes with them (PPO: the envs of the rollout and the
-samples of each minibatch). ``over_devices(fn, xs)`` splits whole
-independent runs instead: ``jax.vmap(fn)(xs)`` with the rows of ``xs`` (one per seed) spread over the
-process's devices, each device vmapping its own rows.
+else in the jitted program stays replicated on every device (``whole_on(devices)`` lays a learner's initial
+state out so). ``rows_over(devices)`` lays arrays' rows over the devices and lets XLA split whatever
+computes with them (PPO: the envs of the rollout and the samples of each minibatch). ``over_devices(fn,
+xs)`` splits whole independent runs instead: ``jax.vmap(fn)(xs)`` with the rows of ``xs`` (one per seed)
+spread over the process's devices, each device vmapping its own rows.
 
 On a CPU, JAX sees one device unless it is told otherwise before it first runs:
 ``use_cpu_devices(n)`` (what ``marbler-jax train`` calls for ``--hp learner_devices=n`` and, with one
 device per core, for ``--seed-batching devices``) splits the host into ``n`` CPU devices, each running
-its share on its own thread: a single-device gradient step of small GRU matmuls leaves most of a second
-core idle, which a second device puts to work (BENCHMARKS.md).
+its share on its own thread: a single-device step of small matmuls leaves most of a second core idle,
+which a second device puts to work (BENCHMARKS.md).
 """
 from __future__ import annotations
 
