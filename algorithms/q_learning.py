@@ -37,7 +37,7 @@ module is everything else, as in EPyMARL:
   the buffer holds no more sequences than the update's gradient steps sample (``buffer_size <=
   train_steps * batch_size``), the targets of every buffered sequence are computed once at the start of
   the update and each gradient step runs the online network only. The result is the same as computing
-  them per batch (up to float rounding); PQN-style runs (the value-based recipe) spend ~4x less on targets.
+  them per batch (up to float rounding), and each target is computed once instead of once per sampling.
 
 Choices (documented where EPyMARL differs): the end of an episode by MARBLER's step limit is
 treated as terminal (the observations carry no time, and MARBLER returns ``done`` there);

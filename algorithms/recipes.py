@@ -9,7 +9,7 @@ The algorithms keep the MARBLER paper's definitions, since its Table II compares
 MAPPO share one network across robots (with an agent-ID one-hot), QMIX_NS has one per robot, IPPO shares
 one with a critic on each robot's own observation. All train in the robots' loop: controller and barrier
 recomputed every tick (``control_period = 1``), the loop a bundle runs on the robots. Against MARBLER's
-training loop (every 15 ticks, where the paper's models trained) it costs 1.15-1.17x the wall time per
+training loop (every 15 ticks, where the paper's models trained) it costs a little more wall time per
 env step for the same reward, without the collisions that a command held for 15 ticks lets through
 (BENCHMARKS.md, ``results/robots-loop``); ``marbler-jax benchmark --set control_period=15`` trains a cell
 in MARBLER's loop.

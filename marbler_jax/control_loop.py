@@ -28,9 +28,8 @@ ENV_RELAXATION = 1.5
 The robots an env certificate keeps apart pose well-conditioned problems, on which 1.5 converges in
 fewer sweeps than the 1.7 that :func:`marbler_jax.cbf.default_relaxation` uses above 10 robots (that
 value suits the stiff, overlapping golden cases). On random-policy Warehouse trajectories with
-12-32 robots, 1.5 matched the 400-sweep reference at least as often as 1.7 at every budget tried
-(8-40 sweeps), and far more often at small budgets (``scripts/bench_cbf_env.py --relaxation``,
-BENCHMARKS.md). Up to 10 robots both defaults are 1.5.
+12-32 robots, 1.5 matches the 400-sweep reference at least as often as 1.7 at budgets of 8-40 sweeps,
+and far more often at small budgets (``scripts/bench_cbf_env.py --relaxation``, BENCHMARKS.md). Up to 10 robots both defaults are 1.5.
 """
 
 

@@ -1,4 +1,4 @@
-"""Longer learning checks on Predator Capture Prey (``-m slow``; ~10 minutes each on 2 cores).
+"""Longer learning checks on Predator Capture Prey (``-m slow``: each trains a recipe's full budget).
 
 Each value-based algorithm trains with its recipe through the CLI (``marbler-jax train``, the command a user
 types; two learner devices, set in a fresh interpreter before JAX starts) for 10M env steps, one seed, and its
