@@ -49,15 +49,21 @@ def _mesh(devices: int, axis: str = AXIS) -> Mesh:
     return Mesh(np.array(available[:devices]), (axis,))
 
 
+def _laid_out(devices: int, spec: PartitionSpec):
+    """``tree -> tree`` with every leaf constrained to ``spec`` over ``devices`` devices inside a jitted
+    program; the identity for one device."""
+    if devices == 1:
+        return lambda tree: tree
+    sharding = NamedSharding(_mesh(devices), spec)
+    return lambda tree: jax.tree_util.tree_map(lambda x: jax.lax.with_sharding_constraint(x, sharding), tree)
+
+
 def whole_on(devices: int):
     """``place(tree)``: every leaf whole on each of ``devices`` devices inside a jitted program (the
     identity for one device). A program split by :func:`split_batch` / :func:`split_rows` returns its
     state laid out so; its initial state laid out the same way enters it as every later call's does, so
     the program compiles once."""
-    if devices == 1:
-        return lambda tree: tree
-    whole = NamedSharding(_mesh(devices), PartitionSpec())
-    return lambda tree: jax.tree_util.tree_map(lambda x: jax.lax.with_sharding_constraint(x, whole), tree)
+    return _laid_out(devices, PartitionSpec())
 
 
 def rows_over(devices: int):
@@ -65,10 +71,7 @@ def rows_over(devices: int):
     devices inside a jitted program, the rest of the program left to XLA's partitioner; the identity for
     one device. What is computed is unchanged, so a program spread this way gives one device's results up
     to float rounding (its random draws too: JAX's random bits do not depend on the layout)."""
-    if devices == 1:
-        return lambda tree: tree
-    rows = NamedSharding(_mesh(devices), PartitionSpec(AXIS))
-    return lambda tree: jax.tree_util.tree_map(lambda x: jax.lax.with_sharding_constraint(x, rows), tree)
+    return _laid_out(devices, PartitionSpec(AXIS))
 
 
 def _specs(args, batch_argnum: int):

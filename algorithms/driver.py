@@ -205,9 +205,8 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         # laid out like a fresh runner (one device, the seeds spread over devices, or as a learner split over
         # devices lays out its state), so the resumed run executes the very programs a fresh one compiles,
         # and every chunk the one compiled up front
-        runner = jax.tree_util.tree_map(
-            lambda saved, fresh: jax.device_put(np.asarray(saved), fresh.sharding if fresh.committed else None),
-            restored, runner)
+        runner = jax.tree_util.tree_map(lambda saved, fresh: jax.device_put(np.asarray(saved), fresh.sharding),
+                                        restored, runner)
         lines = _lines_upto(out / "metrics.jsonl", done)
         test_lines = _lines_upto(out / TESTS_FILE, done)
         log(f"resuming from update {done} of {num_updates}")

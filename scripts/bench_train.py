@@ -132,7 +132,7 @@ def main() -> None:
     use_cpu_devices(max(args.learner_devices + [os.cpu_count() or 1] * ("devices" in args.seed_batching)))
     combos = [(a, p, k, b, d, v) for a in args.algos for p in args.presets for k in args.seeds
               for b in args.seed_batching for d in args.learner_devices for v in args.variants
-              if d == 1 or (has_setting(a, "learner_devices") and b != "devices")]
+              if d == 1 or b != "devices"]
     prepared = []
     for algo, name, seeds, batching, devices, variant in tqdm(combos, desc="compiling", unit="config"):
         prepared.append(prepare(args.scenario, algo, name, args.updates, seeds, devices,
