@@ -13,7 +13,7 @@ results file in marl-eval's layout::
         "absolute_metrics": {metric: [per-episode values], "best_test_return": [x],
                              "env_steps": [per seed], "train_seconds": [updates' time, all seeds],
                              "wall_seconds": [the cell's wall time, summed over invocations],
-                             "device": [the accelerator that trained it, e.g. "cpu" or "NVIDIA H100 80GB HBM3"]}}}}}}
+                             "device": [the accelerator(s) that trained it, e.g. "cpu" or "NVIDIA H200 + cpu"]}}}}}}
 
 with the metrics of :data:`marbler_jax.rollout.EPISODE_METRICS` and the scenario's own (``prey_left``,
 ``material_left``, ...). The file is rewritten atomically after every cell. A rerun skips the cells the
@@ -46,25 +46,36 @@ PAPER_SCENARIOS = ("predator_capture_prey", "warehouse", "material_transport", "
 JAXROBOTARIUM_SCENARIOS = ("discovery", "foraging", "rware")
 ABSOLUTE = "absolute_metrics"
 WALL_FILE = "wall_seconds.json"
+UNRECORDED_DEVICE = "device not recorded"
 
 
 class WallClock:
-    """A cell's wall time summed over the invocations that trained it, kept in ``run/wall_seconds.json``
-    (``{"invocations": [seconds, ...]}``). The current invocation's entry is rewritten after every saved
-    checkpoint, so an interrupted invocation counts up to its last checkpoint (the work a resume keeps)."""
+    """A cell's wall time summed over the invocations that trained it, and the device each ran on, kept in
+    ``run/wall_seconds.json`` (``{"invocations": [seconds, ...], "devices": [device kind, ...]}``). The current
+    invocation's entry is rewritten after every saved checkpoint, so an interrupted invocation counts up to its
+    last checkpoint (the work a resume keeps)."""
 
-    def __init__(self, run: Path, resume: bool):
+    def __init__(self, run: Path, resume: bool, device: str):
         self.path = Path(run) / WALL_FILE
-        previous = json.loads(self.path.read_text())["invocations"] if resume and self.path.exists() else []
-        self.invocations = [float(x) for x in previous] + [0.0]
+        saved = json.loads(self.path.read_text()) if resume and self.path.exists() else {}
+        previous = [float(x) for x in saved.get("invocations", [])]
+        devices = saved.get("devices", [])
+        devices = devices + [UNRECORDED_DEVICE] * (len(previous) - len(devices))
+        self.invocations = previous + [0.0]
+        self.devices = devices[:len(previous)] + [device]
         self.start = time.perf_counter()
 
     def save(self) -> float:
         """Record this invocation's seconds so far; returns the cell's total."""
         self.invocations[-1] = round(time.perf_counter() - self.start, 1)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write(self.path, json.dumps({"invocations": self.invocations}))
+        atomic_write(self.path, json.dumps({"invocations": self.invocations, "devices": self.devices}))
         return float(sum(self.invocations))
+
+    def device(self) -> str:
+        """The devices that trained the cell, in order, each once (``"NVIDIA H200 + cpu"`` for a cell
+        resumed on a CPU)."""
+        return " + ".join(dict.fromkeys(self.devices))
 
 
 def results_name(process_index: int = 0, process_count: int = 1) -> str:
@@ -234,7 +245,7 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
         if resume and changed_settings(run, run_config(scenario, algo, seeds, seed, env, cfg, test_episodes), env):
             log(f"{run} holds a run with other settings: moved to {set_aside(run)}")
             resume = False
-        clock = WallClock(run, resume)
+        clock = WallClock(run, resume, jax.devices()[0].device_kind)
 
         def chunk_saved(update):
             clock.save()
@@ -250,7 +261,7 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
         seconds = clock.save()
         for entry in runs.values():
             entry[ABSOLUTE]["wall_seconds"] = [round(seconds, 1)]
-            entry[ABSOLUTE]["device"] = [jax.devices()[0].device_kind]
+            entry[ABSOLUTE]["device"] = [clock.device()]
         results = add_cell(path, scenario, algo, runs)
         spent_steps += steps * seeds
         spent_seconds += seconds

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .benchmark import (ABSOLUTE, ENV_NAME, JAXROBOTARIUM_SCENARIOS, PAPER_ALGOS, PAPER_SCENARIOS, cell_digest,
-                        load_results)
+from .benchmark import (ABSOLUTE, ENV_NAME, JAXROBOTARIUM_SCENARIOS, PAPER_ALGOS, PAPER_SCENARIOS, UNRECORDED_DEVICE,
+                        cell_digest, load_results)
 from .driver import atomic_write
 from .evaluate import PAPER
 from .recipes import RECIPES
@@ -260,7 +260,7 @@ def training_time(tasks: dict) -> str:
     for algos in tasks.values():
         for runs in algos.values():
             first = next(iter(runs.values()))[ABSOLUTE]
-            device = first.get("device", ["device not recorded"])[0]
+            device = first.get("device", [UNRECORDED_DEVICE])[0]
             hours[device] = hours.get(device, 0.0) + first.get("train_seconds", [0.0])[0] / 3600
             counts[device] = counts.get(device, 0) + 1
     return ", ".join(f"{hours[d]:.2f} h on {d} ({counts[d]} cell{'s' if counts[d] > 1 else ''})"

@@ -86,6 +86,24 @@ def test_training_time_is_summed_per_device():
                                            "0.00 h on device not recorded (1 cell)")
 
 
+def test_wall_clock_names_every_device_that_trained_a_resumed_cell(tmp_path):
+    first = benchmark.WallClock(tmp_path, resume=False, device="NVIDIA H200")
+    first.save()
+    assert first.device() == "NVIDIA H200"
+    again = benchmark.WallClock(tmp_path, resume=True, device="NVIDIA H200")
+    again.save()
+    resumed = benchmark.WallClock(tmp_path, resume=True, device="cpu")
+    resumed.save()
+    saved = json.loads((tmp_path / benchmark.WALL_FILE).read_text())
+    assert saved["devices"] == ["NVIDIA H200", "NVIDIA H200", "cpu"] and len(saved["invocations"]) == 3
+    assert resumed.device() == "NVIDIA H200 + cpu"
+    # a file written before devices were recorded: its invocations count, their device is not known
+    (tmp_path / benchmark.WALL_FILE).write_text(json.dumps({"invocations": [10.0, 20.0]}))
+    old = benchmark.WallClock(tmp_path, resume=True, device="cpu")
+    assert old.save() >= 30.0 and old.device() == f"{benchmark.UNRECORDED_DEVICE} + cpu"
+    assert benchmark.WallClock(tmp_path, resume=False, device="cpu").device() == "cpu"
+
+
 def test_report_renders_tables_curves_and_improvement(tmp_path):
     from marbler_jax_rl.recipes import RECIPES
 
