@@ -191,16 +191,66 @@ def _rps_v2_python() -> Path:
 
 
 def _run_bundle(python, folder, trace, extra_env=None, prelude=None):
+    """``main.py`` of the bundle ``folder`` run headless by ``python`` (or ``prelude``, Python source that runs
+    it); returns its stdout. A run that drives in under rps v2: :func:`_run_on_rps_v2`."""
+    result = _bundle_process(python, folder, trace, extra_env, prelude)
+    assert result.returncode == 0, result.stdout + result.stderr
+    return result.stdout
+
+
+def _bundle_process(python, folder, trace, extra_env=None, prelude=None, args=()):
     env = dict(os.environ, MARBLER_JAX_HEADLESS="1", MARBLER_JAX_TRACE=str(trace), **(extra_env or {}))
     env.pop("PYTHONPATH", None)
     # the rps venvs are installed without bytecode: the first run writes it for what it imports, into a cache
     # outside the bundle folders (a bundle must stay flat), and later runs load it
     env.pop("PYTHONDONTWRITEBYTECODE", None)
     env["PYTHONPYCACHEPREFIX"] = str(REPO / ".pytest_cache" / "pycache-bundles")
-    command = [str(python), "main.py"] if prelude is None else [str(python), "-c", prelude]
-    result = subprocess.run(command, cwd=folder, env=env, capture_output=True, text=True, timeout=600)
-    assert result.returncode == 0, result.stdout + result.stderr
-    return result.stdout
+    command = [str(python), "main.py"] if prelude is None else [str(python), "-c", prelude, *args]
+    return subprocess.run(command, cwd=folder, env=env, capture_output=True, text=True, timeout=600)
+
+
+# rps v2 drives the robots in from chargers it picks at random and breaks barrier deadlocks with random
+# waypoints (Python's and numpy's global generators, unseeded), until every robot is at its initial pose: for
+# some layouts a deadlock now and then never breaks (Predator Capture Prey's: about one drive-in in 300), and the
+# run hangs. The v2 runs seed both generators and end with DRIVE_IN_STUCK where the drive-in has not arrived
+# after DRIVE_IN_STEPS iterations (typical: 500-5,000); _run_on_rps_v2 then runs again with the next seed.
+DRIVE_IN_STEPS = 20_000
+DRIVE_IN_STUCK = 75          # exit status
+V2_DRIVE_IN = """
+import random, sys
+import numpy
+from rps import robotarium
+random.seed(int(sys.argv[1]))
+numpy.random.seed(int(sys.argv[1]))
+_drive_in = robotarium.Robotarium.initialize
+def _capped_drive_in(self, conditions):
+    step, count = self.step, [0]
+    def counted():
+        count[0] += 1
+        if count[0] > {steps}:
+            sys.exit({stuck})
+        step()
+    self.step = counted
+    try:
+        _drive_in(self, conditions)
+    finally:
+        del self.step
+robotarium.Robotarium.initialize = _capped_drive_in
+"""
+RUN_MAIN = "import runpy; sys.argv = ['main.py']; runpy.run_path('main.py', run_name='__main__')"
+
+
+def _run_on_rps_v2(python, folder, trace, extra_env=None, steps=DRIVE_IN_STEPS):
+    """Like :func:`_run_bundle` under rps v2, with the drive-in seeded and capped at ``steps`` iterations
+    (``V2_DRIVE_IN``): a drive-in that does not arrive is run again with the next seed, up to 3 seeds."""
+    prelude = V2_DRIVE_IN.format(steps=steps, stuck=DRIVE_IN_STUCK) + RUN_MAIN
+    for seed in range(3):
+        result = _bundle_process(python, folder, trace, extra_env, prelude, [str(seed)])
+        if result.returncode != DRIVE_IN_STUCK:
+            assert result.returncode == 0, result.stdout + result.stderr
+            return result.stdout
+    pytest.fail(f"{folder.name}: rps v2's drive-in did not reach the initial poses within {steps} "
+                "iterations with seeds 0, 1 and 2")
 
 
 def test_bundles_run_in_the_real_rps_simulator_like_the_env(bundles, tmp_path):
@@ -315,7 +365,7 @@ def test_bundles_run_on_rps_v2(bundles, tmp_path):
     for name, folder in bundles.items():
         # one episode each: every episode drives the robots in from the chargers again (most of a run's time);
         # the trained bundle's second episode runs under the 2023 rps above
-        stdout = _run_bundle(python, folder, tmp_path / f"trace-{name}", {"MARBLER_JAX_EPISODES": "1"})
+        stdout = _run_on_rps_v2(python, folder, tmp_path / f"trace-{name}", {"MARBLER_JAX_EPISODES": "1"})
         assert stdout.count("episode ") == 1 and "real seconds to execute" in stdout, stdout
         assert "exceed actuator limits" not in stdout, (name, stdout)
         if name == "simple_navigation":
@@ -323,6 +373,20 @@ def test_bundles_run_on_rps_v2(bundles, tmp_path):
         else:
             assert ("robots were too close" not in stdout) or "collisions=True" in stdout, (name, stdout)
             assert ("outside boundaries" not in stdout) or "out_of_bounds=True" in stdout, (name, stdout)
+
+
+def test_a_drive_in_that_never_arrives_fails_the_v2_run_instead_of_hanging(bundles, tmp_path):
+    """Two robots 0.2 m apart facing each other: a start the bundle accepts (no collision), but one rps v2's
+    drive-in never reaches (its barrier keeps the points 5 cm ahead of the robots 0.25 m apart). The seeded,
+    capped v2 run fails after three seeds with a message instead of hanging until the subprocess timeout."""
+    python = _rps_v2_python()
+    folder = tmp_path / "unreachable"
+    shutil.copytree(bundles["simple_navigation"], folder)
+    poses = np.load(folder / "initial_poses.npy")
+    poses[:, 0], poses[:, 1] = [-0.1, 0.0, 0.0], [0.1, 0.0, np.pi]
+    np.save(folder / "initial_poses.npy", poses)
+    with pytest.raises(pytest.fail.Exception, match="did not reach the initial poses within 300 iterations"):
+        _run_on_rps_v2(python, folder, tmp_path / "trace", {"MARBLER_JAX_EPISODES": "1"}, steps=300)
 
 
 def test_export_never_deletes_what_a_user_made(ippo_simple_nav_run, tmp_path):
