@@ -406,6 +406,38 @@ def test_export_never_deletes_what_a_user_made(ippo_simple_nav_run, tmp_path):
     assert cli([*args, "--out", str(notes), "--force"]) == 0 and not (notes / "notes.txt").exists()
 
 
+def test_bundles_start_only_where_the_robotariums_drive_in_can_reach(monkeypatch):
+    """rps v2's drive-in keeps the points 0.05 m ahead of every two robots 0.25 m apart: a start closer than
+    that is never reached (the run hangs). Such starts are drawn again; starts that are all reachable stay
+    exactly the env's resets from the bundle seed's keys."""
+    from marbler_jax.deploy import bundle
+
+    def pair(distance, heading_a, heading_b):
+        return np.array([[-distance / 2, 0.0, heading_a], [distance / 2, 0.0, heading_b]])
+
+    # facing each other 0.3 m apart: points 0.2 m apart; facing away: 0.4 m; side by side 0.25 / 0.24 m
+    cases = [pair(0.3, 0.0, np.pi), pair(0.3, np.pi, 0.0), pair(0.25, np.pi / 2, np.pi / 2),
+             pair(0.24, np.pi / 2, np.pi / 2)]
+    assert bundle.drive_in_reachable(np.stack(cases)).tolist() == [False, True, True, False]
+    # Discovery draws random headings on a 0.3 m grid: some of the seed's first resets are unreachable
+    env = marbler_jax.make("discovery")
+    _, raw = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(3), 24))
+    reachable = bundle.drive_in_reachable(np.asarray(raw.poses))
+    assert 0 < reachable.sum() < 24
+    poses, fields, _ = bundle.initial_states(env, 24, seed=3)
+    assert poses.shape == (24, 4, 3) and bundle.drive_in_reachable(poses).all()
+    np.testing.assert_allclose(poses[:reachable.sum()], np.asarray(raw.poses)[reachable], atol=1e-6)
+    assert set(fields) == {"landmarks", "sensed", "tagged"}
+    for name, value in fields.items():              # each start's scenario state stays with its poses
+        np.testing.assert_array_equal(value[:reachable.sum()], np.asarray(getattr(raw.scenario, name))[reachable])
+    pcp = marbler_jax.make("predator_capture_prey")
+    _, raw = jax.vmap(pcp.reset)(jax.random.split(jax.random.PRNGKey(0), 3))
+    np.testing.assert_allclose(bundle.initial_states(pcp, 3)[0], np.asarray(raw.poses), atol=1e-6)
+    monkeypatch.setattr(bundle, "DRIVE_IN_SPACING", 5.0)
+    with pytest.raises(ValueError, match=r"discovery: fewer than 2 of 200 start states put every two robots' points"):
+        bundle.initial_states(env, 2)
+
+
 def test_bundle_refuses_initial_poses_that_cannot_start_an_episode():
     from marbler_jax.deploy.main import check_initial_poses
 

@@ -11,7 +11,8 @@ Contents (every file has an extension the Robotarium accepts):
   barrier, update frequency, horizon) plus what ``main.py`` needs to rebuild the scenario;
 * ``initial_poses.npy`` ``[E, N, 3]`` and ``initial_<field>.npy`` -- the start states of the ``E``
   episodes, sampled at export time with the env's own ``reset`` (JAX randomness stays in training;
-  the deployed run is reproducible and can be replayed in the JAX env from the same states).
+  the deployed run is reproducible and can be replayed in the JAX env from the same states); only starts
+  that the Robotarium's drive-in can reach (:func:`drive_in_reachable`).
 
 The folder is written under a temporary name, checked with
 :func:`marbler_jax.deploy.flatten.check_bundle_folder`, and renamed into place.
@@ -31,13 +32,46 @@ from marbler_jax.deploy.flatten import CORE_MODULES, check_bundle_folder, flatte
 from marbler_jax.deploy.main import BUNDLE_FORMAT, CONFIG_FILE
 
 
+# rps v2 (today's Robotarium) drives the robots from the chargers to the initial poses under
+# create_uni_barrier_certificate(): a 0.15 m safety radius between the points 0.05 m ahead of the robots, widened
+# by twice that projection. Two initial poses whose points are closer than that are never reached together (the
+# drive-in loops forever, and the Robotarium rejects experiments that cannot reach their initial conditions).
+DRIVE_IN_PROJECTION = 0.05                          # m
+DRIVE_IN_SPACING = 0.15 + 2 * DRIVE_IN_PROJECTION   # m
+MAX_DRAWS = 100                                     # rounds of ``episodes`` reset keys before giving up
+
+
+def drive_in_reachable(poses) -> np.ndarray:
+    """Whether the Robotarium's drive-in can reach ``poses`` ``[..., N, 3]`` (bool ``[...]``): the points
+    :data:`DRIVE_IN_PROJECTION` ahead of every two robots at least :data:`DRIVE_IN_SPACING` apart."""
+    poses = np.asarray(poses, np.float64)
+    ahead = poses[..., :2] + DRIVE_IN_PROJECTION * np.stack([np.cos(poses[..., 2]), np.sin(poses[..., 2])], -1)
+    distances = np.linalg.norm(ahead[..., :, None, :] - ahead[..., None, :, :], axis=-1)
+    distances += np.where(np.eye(poses.shape[-2], dtype=bool), np.inf, 0.0)
+    return np.all(distances >= DRIVE_IN_SPACING, axis=(-2, -1))
+
+
 def initial_states(env, episodes: int, seed: int = 0):
-    """``(poses [E, N, 3] float64, {field: [E, ...]}, state class)`` from ``env.reset`` with keys split
-    from ``seed``."""
+    """``(poses [E, N, 3] float64, {field: [E, ...]}, state class)``: ``env.reset`` with keys split from
+    ``seed``, keeping the starts the Robotarium's drive-in can reach (:func:`drive_in_reachable`) in key order;
+    where fewer than ``episodes`` are left, the next keys come from ``fold_in(seed key, round)``."""
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
-    keys = jax.random.split(jax.random.PRNGKey(seed), episodes)
-    _, states = jax.jit(jax.vmap(env.reset))(keys)      # one program, not one dispatch per op
+    reset = jax.jit(jax.vmap(env.reset))      # one program, not one dispatch per op
+    root = jax.random.PRNGKey(seed)
+    kept = []
+    for draw in range(MAX_DRAWS):
+        keys = jax.random.split(root if draw == 0 else jax.random.fold_in(root, draw), episodes)
+        _, states = reset(keys)
+        reachable = np.flatnonzero(drive_in_reachable(np.asarray(states.poses)))
+        kept += [jax.tree_util.tree_map(lambda x, i=i: np.asarray(x[i]), states) for i in reachable]
+        if len(kept) >= episodes:
+            break
+    else:
+        raise ValueError(f"{env.name}: fewer than {episodes} of {MAX_DRAWS * episodes} start states put every two "
+                         f"robots' points {DRIVE_IN_PROJECTION} m ahead at least {DRIVE_IN_SPACING} m apart, "
+                         "which the Robotarium's drive-in needs to reach them")
+    states = jax.tree_util.tree_map(lambda *x: np.stack(x), *kept[:episodes])
     fields = {f.name: np.asarray(getattr(states.scenario, f.name)) for f in dataclasses.fields(states.scenario)}
     return np.asarray(states.poses, np.float64), fields, type(states.scenario)
 
