@@ -376,8 +376,9 @@ def test_bundles_run_on_rps_v2(bundles, tmp_path):
 
 
 def test_a_drive_in_that_never_arrives_fails_the_v2_run_instead_of_hanging(bundles, tmp_path):
-    """Two robots 0.2 m apart facing each other: a start the bundle accepts (no collision), but one rps v2's
-    drive-in never reaches (its barrier keeps the points 5 cm ahead of the robots 0.25 m apart). The seeded,
+    """Two robots 0.2 m apart facing each other: a start the bundle's main.py accepts (no collision), but one
+    rps v2's drive-in seldom reaches (its barrier keeps the points 5 cm ahead of the robots 0.25 m apart), and
+    not within the 300 iterations allowed here (a drive-in from the chargers takes 500 or more). The seeded,
     capped v2 run fails after three seeds with a message instead of hanging until the subprocess timeout."""
     python = _rps_v2_python()
     folder = tmp_path / "unreachable"
