@@ -34,8 +34,8 @@ from marbler_jax.deploy.main import BUNDLE_FORMAT, CONFIG_FILE
 
 # rps v2 (today's Robotarium) drives the robots from the chargers to the initial poses under
 # create_uni_barrier_certificate(): a 0.15 m safety radius between the points 0.05 m ahead of the robots, widened
-# by twice that projection. Two initial poses whose points are closer than that are never reached together (the
-# drive-in loops forever, and the Robotarium rejects experiments that cannot reach their initial conditions).
+# by twice that projection. Two initial poses whose points are closer than that are seldom reached together (the
+# drive-in mostly loops forever, and the Robotarium rejects experiments that cannot reach their initial conditions).
 DRIVE_IN_PROJECTION = 0.05                          # m
 DRIVE_IN_SPACING = 0.15 + 2 * DRIVE_IN_PROJECTION   # m
 MAX_DRAWS = 100                                     # rounds of ``episodes`` reset keys before giving up
