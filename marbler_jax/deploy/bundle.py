@@ -59,19 +59,20 @@ def initial_states(env, episodes: int, seed: int = 0):
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     reset = jax.jit(jax.vmap(env.reset))      # one program, not one dispatch per op
     root = jax.random.PRNGKey(seed)
-    kept = []
+    kept, count = [], 0
     for draw in range(MAX_DRAWS):
         keys = jax.random.split(root if draw == 0 else jax.random.fold_in(root, draw), episodes)
         _, states = reset(keys)
-        reachable = np.flatnonzero(drive_in_reachable(np.asarray(states.poses)))
-        kept += [jax.tree_util.tree_map(lambda x, i=i: np.asarray(x[i]), states) for i in reachable]
-        if len(kept) >= episodes:
+        reachable = drive_in_reachable(np.asarray(states.poses))
+        kept.append(jax.tree_util.tree_map(lambda x: np.asarray(x)[reachable], states))
+        count += int(reachable.sum())
+        if count >= episodes:
             break
     else:
         raise ValueError(f"{env.name}: fewer than {episodes} of {MAX_DRAWS * episodes} start states put every two "
                          f"robots' points {DRIVE_IN_PROJECTION} m ahead at least {DRIVE_IN_SPACING} m apart, "
                          "which the Robotarium's drive-in needs to reach them")
-    states = jax.tree_util.tree_map(lambda *x: np.stack(x), *kept[:episodes])
+    states = jax.tree_util.tree_map(lambda *x: np.concatenate(x)[:episodes], *kept)
     fields = {f.name: np.asarray(getattr(states.scenario, f.name)) for f in dataclasses.fields(states.scenario)}
     return np.asarray(states.poses, np.float64), fields, type(states.scenario)
 
