@@ -17,13 +17,15 @@ results file in marl-eval's layout::
 
 with the metrics of :data:`marbler_jax.rollout.EPISODE_METRICS` and the scenario's own (``prey_left``,
 ``material_left``, ...). The file is rewritten atomically after every cell. A rerun skips the cells the
-file holds and resumes an interrupted cell from its last checkpoint (bit-exactly).
+file holds and resumes an interrupted cell from its last checkpoint (bit-exactly); :func:`plan_cells` says
+beforehand what a run will do with each cell (``marbler-jax benchmark --dry-run``).
 
 Several processes (or hosts) share the grid through JAX's distributed runtime: process ``i`` of ``n``
 takes every ``n``-th cell and writes ``results-p<i>.json``; ``marbler-jax report`` merges the files.
 """
 from __future__ import annotations
 
+import dataclasses
 import fcntl
 import json
 import os
@@ -153,6 +155,100 @@ def grid(algos, scenarios, process_index: int = 0, process_count: int = 1) -> li
     return cells[process_index::process_count]
 
 
+CELL_STATUSES = {
+    "done": "in the results file with these settings: skipped",
+    "resume": "interrupted: resumes from its latest checkpoint",
+    "restart": "its run folder holds other settings: set aside, trains from the start",
+    "new": "trains from the start",
+}
+"""What :func:`run_benchmark` does with a cell, by :attr:`CellPlan.status`."""
+
+
+@dataclasses.dataclass(frozen=True)
+class CellPlan:
+    """One cell of a benchmark and what :func:`run_benchmark` would do with it.
+
+    ``env_settings``, ``hp`` and ``steps`` (env steps per seed) are what it trains with, ``digest`` their
+    :func:`~marbler_jax_rl.recipes.settings_digest`, ``updates`` its number of updates; ``status`` is a key of
+    :data:`CELL_STATUSES`; ``checkpoint`` the latest checkpoint's update of a run to resume; ``replaces``: the
+    results file holds the cell made with other settings, which this run replaces."""
+
+    scenario: str
+    algo: str
+    env_settings: dict
+    hp: dict
+    steps: int
+    digest: str
+    updates: int
+    status: str
+    checkpoint: int | None = None
+    replaces: bool = False
+
+
+def latest_checkpoint(run: Path) -> int | None:
+    """The update of the newest checkpoint folder in ``run/checkpoints`` (None where there is none)."""
+    folder = Path(run) / "checkpoints"
+    steps = [int(p.name) for p in folder.iterdir() if p.name.isdigit()] if folder.is_dir() else []
+    return max(steps, default=None)
+
+
+def plan_cells(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS, seeds: int = 5,
+               total_steps: int | None = None, test_episodes: int = 64, seed: int = 0, process_index: int = 0,
+               process_count: int = 1, recipes=None, env_overrides: dict | None = None) -> list[CellPlan]:
+    """This process's cells in ``out`` (arguments as :func:`run_benchmark`'s) and what a run would do with
+    each; reads the results file and run folders, writes nothing."""
+    recipes = dict(recipes or {})
+    cells = grid(algos, scenarios, process_index, process_count)
+    path = Path(out) / results_name(process_index, process_count)
+    results = json.loads(path.read_text()) if path.exists() else {}
+    held = {cell: cell_digest(results[ENV_NAME][cell[0]][cell[1]]) for cell in finished_cells(results)}
+    plans = []
+    for scenario, algo in cells:
+        env_settings, hp, steps = cell_settings(recipes.get(algo) or recipe(algo), scenario, total_steps,
+                                                env_overrides)
+        digest = settings_digest(env_settings, hp, steps)
+        env = marbler_jax.make(scenario, **env_settings)
+        cfg = build_config(algo, dict(hp, total_timesteps=steps))
+        run = Path(out) / "runs" / scenario / algo
+        checkpoint = None
+        if held.get((scenario, algo)) == digest:
+            status = "done"
+        elif not (run / "config.json").exists():
+            status = "new"
+        elif changed_settings(run, run_config(scenario, algo, seeds, seed, env, cfg, test_episodes), env):
+            status = "restart"
+        else:
+            checkpoint = latest_checkpoint(run)
+            status = "new" if checkpoint is None else "resume"
+        plans.append(CellPlan(scenario, algo, env_settings, hp, steps, digest,
+                              ALGORITHMS[algo][1](env, cfg).num_updates, status, checkpoint,
+                              replaces=status != "done" and (scenario, algo) in held))
+    return plans
+
+
+def remaining_steps(plan: CellPlan, seeds: int) -> int:
+    """Env steps (all seeds) ``plan``'s cell has left to train."""
+    if plan.status == "done":
+        return 0
+    done = plan.checkpoint if plan.status == "resume" else 0
+    return round(plan.steps * seeds * (plan.updates - done) / plan.updates)
+
+
+def describe_plan(plans: list[CellPlan], seeds: int, where: str) -> str:
+    """``benchmark --dry-run``'s text: one line per cell of ``where`` (the results file) and a summary."""
+    counts = {status: sum(p.status == status for p in plans) for status in CELL_STATUSES}
+    lines = [f"{where}: {len(plans)} cell(s), " + ", ".join(f"{n} {s}" for s, n in counts.items() if n)
+             + f"; {sum(remaining_steps(p, seeds) for p in plans):,} env steps to train ({seeds} seed(s) per cell)"]
+    width = max((len(p.scenario) for p in plans), default=0)
+    for k, plan in enumerate(plans, 1):
+        what = {"done": "done", "new": "new", "restart": "restart (its run folder is set aside)",
+                "resume": f"resume from update {plan.checkpoint} of {plan.updates}"}[plan.status]
+        if plan.replaces:
+            what += "; replaces its cell made with other settings"
+        lines.append(f"{k:>3}/{len(plans)}  {plan.scenario:<{width}}  {plan.algo:<7}  {plan.steps:>12,} steps/seed  {what}")
+    return "\n".join(lines)
+
+
 def training_seconds(metrics: list[dict], seeds: int) -> float:
     """Seconds the run's updates took (from each ``metrics.jsonl`` line's env-steps/s; no compilation, tests
     or checkpoints), summed over every invocation of a resumed run."""
@@ -197,11 +293,6 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
     envs and each minibatch; either way every seed trains as on one device, up to float rounding.
     ``recipes``: ``{algo: Recipe}`` instead of :data:`marbler_jax_rl.recipes.RECIPES`; ``env_overrides``:
     env settings on top of every recipe's (e.g. ``{"control_period": 15}``)."""
-    recipes = dict(recipes or {})
-
-    def recipe_of(algo):
-        return recipes[algo] if algo in recipes else recipe(algo)
-
     for name, value, low in (("seeds", seeds, 1), ("eval_points", eval_points, 1), ("test_episodes", test_episodes, 1),
                              ("absolute_factor", absolute_factor, 1), ("devices", devices, 1)):
         if not isinstance(value, int) or value < low:
@@ -212,39 +303,33 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
         raise ValueError(f"devices={devices} but this process has {jax.local_device_count()} JAX device(s) "
                          f"({jax.local_devices()[0].platform}); on a CPU ask for them first with "
                          f"marbler_jax_rl.data_parallel.use_cpu_devices({devices}) (marbler-jax benchmark does)")
-    cells = grid(algos, scenarios, process_index, process_count)
-    for scenario in {s for s, _ in cells} if env_overrides else ():
-        marbler_jax.make(scenario, **env_overrides)      # a bad setting fails here, before any cell trains
+    # a bad setting (an unknown algorithm, scenario or env override) fails here, before any cell trains
+    plans = plan_cells(out, algos, scenarios, seeds, total_steps, test_episodes, seed, process_index, process_count,
+                       recipes, env_overrides)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / results_name(process_index, process_count)
-    results = json.loads(path.read_text()) if path.exists() else {}
-    chosen = {(s, a): cell_settings(recipe_of(a), s, total_steps, env_overrides) for s, a in cells}
-    digests = {cell: settings_digest(*chosen[cell]) for cell in cells}
-    held = {cell: cell_digest(results[ENV_NAME][cell[0]][cell[1]]) for cell in finished_cells(results) if cell in digests}
-    todo = [c for c in cells if held.get(c) != digests[c]]
-    redo = sum(c in held for c in todo)
-    log(f"benchmark: {len(cells)} cell(s) for this process, {len(cells) - len(todo)} already in {path}"
+    todo = [plan for plan in plans if plan.status != "done"]
+    redo = sum(plan.replaces for plan in todo)
+    log(f"benchmark: {len(plans)} cell(s) for this process, {len(plans) - len(todo)} already in {path}"
         + (f"; {redo} of its cells were made with other settings and train again" if redo else ""))
     spent_steps, spent_seconds = 0, 0.0
-    budgets = [chosen[cell][2] * seeds for cell in todo]
-    for i, (scenario, algo) in enumerate(todo):
-        k = len(cells) - len(todo) + i + 1
-        env_settings, hp, steps = chosen[scenario, algo]
-        hp = dict(hp)
-        digest = digests[scenario, algo]
+    budgets = [plan.steps * seeds for plan in todo]
+    results = json.loads(path.read_text()) if path.exists() else {}
+    for i, plan in enumerate(todo):
+        k = len(plans) - len(todo) + i + 1
+        scenario, algo, env_settings, steps, digest = plan.scenario, plan.algo, plan.env_settings, plan.steps, plan.digest
+        hp = dict(plan.hp)
         if devices > 1:
             hp["learner_devices"] = devices
         env = marbler_jax.make(scenario, **env_settings)
         cfg = build_config(algo, dict(hp, total_timesteps=steps))
-        updates = ALGORITHMS[algo][1](env, cfg).num_updates
         eta = f", ETA {sum(budgets[i:]) * spent_seconds / spent_steps / 3600:.1f} h" if spent_steps else ""
-        log(f"cell {k}/{len(cells)}: {algo} on {scenario}, {seeds} seed(s) x {steps:,} env steps{eta}")
+        log(f"cell {k}/{len(plans)}: {algo} on {scenario}, {seeds} seed(s) x {steps:,} env steps{eta}")
         run = out / "runs" / scenario / algo
-        resume = (run / "config.json").exists()
-        if resume and changed_settings(run, run_config(scenario, algo, seeds, seed, env, cfg, test_episodes), env):
+        if plan.status == "restart":
             log(f"{run} holds a run with other settings: moved to {set_aside(run)}")
-            resume = False
+        resume = plan.status != "restart" and (run / "config.json").exists()
         clock = WallClock(run, resume, jax.devices()[0].device_kind)
 
         def chunk_saved(update):
@@ -253,7 +338,7 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
                 on_chunk(update)
 
         train(scenario, algo, steps, seeds, run, env_overrides=env_settings, hp=hp, eval_episodes=0,
-              checkpoint_every=max(1, updates // eval_points), resume=resume, seed=seed,
+              checkpoint_every=max(1, plan.updates // eval_points), resume=resume, seed=seed,
               progress=progress, log=log, test_episodes=test_episodes, on_chunk=chunk_saved)
         greedy = ALGORITHMS[algo][2]
         runs = cell_runs(run, env, lambda p: greedy(env, cfg, p), seeds, absolute_factor * test_episodes,
@@ -266,10 +351,10 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
         spent_steps += steps * seeds
         spent_seconds += seconds
         best = max(runs.values(), key=lambda r: r[ABSOLUTE]["best_test_return"][0])[ABSOLUTE]["reward"]
-        log(f"cell {k}/{len(cells)} done in {seconds / 60:.1f} min: best seed's reward {np.mean(best):.2f} "
+        log(f"cell {k}/{len(plans)} done in {seconds / 60:.1f} min: best seed's reward {np.mean(best):.2f} "
             f"over {len(best)} episodes -> {path}")
     return results
 
 
-__all__ = ["run_benchmark", "load_results", "add_cell", "finished_cells", "grid", "results_name", "PAPER_ALGOS",
+__all__ = ["run_benchmark", "plan_cells", "CellPlan", "CELL_STATUSES", "load_results", "add_cell", "finished_cells", "grid", "results_name", "PAPER_ALGOS",
            "PAPER_SCENARIOS", "JAXROBOTARIUM_SCENARIOS", "ENV_NAME"]

@@ -112,7 +112,6 @@ def parse_overrides(pairs: list[str]) -> dict:
 
 def _rollout(args) -> int:
     import jax
-    import numpy as np
 
     import marbler_jax
     from marbler_jax.rollout import episode_stats, make_rollout
@@ -209,7 +208,7 @@ def _train(args) -> int:
         use_cpu_devices(os.cpu_count() or 1)
     elif isinstance(hp.get("learner_devices"), int):
         use_cpu_devices(hp["learner_devices"])
-    total = int(float(args.total_steps)) if args.total_steps else steps
+    total = args.total_steps or steps
     if args.hang_seconds < 0:
         raise ValueError(f"--hang-seconds must be >= 0 (0 = off), got {args.hang_seconds}")
     train(args.scenario, args.algo, total, args.seeds, args.out, env_overrides=env_overrides, hp=hp,
@@ -222,6 +221,16 @@ def _train(args) -> int:
 
 def _benchmark(args) -> int:
     shard = _parse_shard(args.shard)
+    total = args.total_steps
+    if args.dry_run:
+        if args.coordinator:
+            raise ValueError("--dry-run shows one process's cells: give --shard I/N instead of --coordinator")
+        from .benchmark import describe_plan, plan_cells, results_name
+
+        plans = plan_cells(args.out, args.algos, args.scenarios, args.seeds, total, args.test_episodes, args.seed,
+                           *shard, env_overrides=parse_overrides(args.set))
+        print(describe_plan(plans, args.seeds, str(Path(args.out) / results_name(*shard))))
+        return 0
     if args.coordinator:
         if args.shard:
             raise ValueError("--coordinator assigns the shard itself; drop --shard")
@@ -232,12 +241,22 @@ def _benchmark(args) -> int:
         use_cpu_devices(args.devices)        # before JAX first runs
     from .benchmark import run_benchmark
 
-    total = int(float(args.total_steps)) if args.total_steps else None
     run_benchmark(args.out, args.algos, args.scenarios, args.seeds, total, args.eval_points, args.test_episodes,
                   args.absolute_factor, args.devices, args.seed, progress=not args.no_progress,
                   process_index=shard[0], process_count=shard[1], env_overrides=parse_overrides(args.set))
     print(f"results: {args.out}; tables and curves: marbler-jax report {args.out}")
     return 0
+
+
+def env_steps(text: str) -> int:
+    """``--total-steps``: a whole number of env steps >= 1, written as ``20000``, ``2e4`` or ``5_000_000``."""
+    try:
+        value = float(text.replace("_", ""))
+    except ValueError:
+        value = float("nan")
+    if not (1 <= value < float("inf") and value.is_integer()):
+        raise argparse.ArgumentTypeError(f"must be a whole number of env steps >= 1 (e.g. 5e6), got {text!r}")
+    return int(value)
 
 
 def _parse_shard(text: str | None) -> tuple[int, int]:
@@ -500,7 +519,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--preset", default="recipe", choices=list(RECIPE_NAMES),
                     help="settings to start from (recipe: the algorithm's benchmark recipe, algorithms/recipes.py; "
                          "paper: MARBLER's EPyMARL settings; none: the algorithm's defaults)")
-    tr.add_argument("--total-steps", default=None, help="env steps per seed (e.g. 5e6; default: the recipe's)")
+    tr.add_argument("--total-steps", type=env_steps, default=None, help="env steps per seed (e.g. 5e6; default: the recipe's)")
     tr.add_argument("--seeds", type=int, default=1, help="seeds trained in one vmapped program")
     tr.add_argument("--seed", type=int, default=0,
                     help="base PRNG seed: the seeds' keys are split from PRNGKey(seed) (default 0)")
@@ -565,7 +584,7 @@ def build_parser() -> argparse.ArgumentParser:
     bm.add_argument("--scenarios", nargs="+", default=list(PAPER_SCENARIOS))
     bm.add_argument("--seeds", type=int, default=5, help="seeds per cell, trained in one vmapped program")
     bm.add_argument("--out", default="results/marbler-table2", help="results folder (results.json, runs/)")
-    bm.add_argument("--total-steps", default=None, help="env steps per seed for every cell (default: each recipe's)")
+    bm.add_argument("--total-steps", type=env_steps, default=None, help="env steps per seed for every cell (default: each recipe's)")
     bm.add_argument("--set", action="append", metavar="KEY=VALUE",
                     help="env config override for every cell, on top of the recipe's (repeatable), e.g. "
                          "control_period=15; the report marks such cells as trained off the recipe")
@@ -587,6 +606,9 @@ def build_parser() -> argparse.ArgumentParser:
     bm.add_argument("--num-processes", type=int, default=None)
     bm.add_argument("--process-id", type=int, default=None)
     bm.add_argument("--no-progress", action="store_true")
+    bm.add_argument("--dry-run", action="store_true",
+                    help="list the cells and what a run would do with each (done, resume from update k, restart, "
+                         "new) and the env steps left; train nothing")
     bm.set_defaults(func=_benchmark)
     rp = sub.add_parser("report", help="tables (IQM, 95%% CI, best seed, paper), curves and probability of "
                         "improvement from a benchmark's results")

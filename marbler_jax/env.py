@@ -44,7 +44,7 @@ from marbler_jax import controllers, physics
 from marbler_jax.cbf import Multipliers
 from marbler_jax.xp import from_minor, to_minor, vmap_in_place
 from marbler_jax.control_loop import barrier_for, control, control_warm, finish_step
-from marbler_jax.scenarios.base import Scenario, ScenarioConfig
+from marbler_jax.scenarios.base import Scenario
 
 
 @struct.dataclass

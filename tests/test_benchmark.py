@@ -179,6 +179,15 @@ def test_tiny_benchmark_writes_resumes_and_reports(tmp_path):
         run_benchmark(out, on_chunk=stop_in_second_cell, **kwargs)
     first = json.loads((out / "results.json").read_text())
     assert finished_cells(first) == {("simple_navigation", "ippo")}
+    # what a rerun will do, before it runs: the first cell is done, the second resumes from its checkpoint
+    plan_args = {k: kwargs[k] for k in ("algos", "scenarios", "seeds", "total_steps", "test_episodes", "recipes")}
+    plans = benchmark.plan_cells(out, **plan_args)
+    assert [(p.algo, p.status, p.checkpoint, p.updates, p.replaces) for p in plans] == [
+        ("ippo", "done", None, 3, False), ("mappo", "resume", 1, 3, False)]
+    assert benchmark.remaining_steps(plans[1], 2) == 2 * 2 * 1024
+    text = benchmark.describe_plan(plans, 2, "bench/results.json").splitlines()
+    assert text[0] == "bench/results.json: 2 cell(s), 1 done, 1 resume; 4,096 env steps to train (2 seed(s) per cell)"
+    assert text[2].endswith("resume from update 1 of 3")
     logs.clear()
     other = _runs([[1.0, 2.0]])
 
@@ -211,6 +220,9 @@ def test_tiny_benchmark_writes_resumes_and_reports(tmp_path):
     # another budget is another setting (as is an env override: test_env_overrides_are_part_of_a_cells_settings):
     # the IPPO cell trains again, its earlier run folder set aside, not deleted
     logs.clear()
+    plans = benchmark.plan_cells(out, **dict(plan_args, algos=["ippo"], total_steps=2 * 1024))
+    assert [(p.status, p.replaces, p.updates) for p in plans] == [("restart", True, 2)]
+    assert (out / "runs" / "simple_navigation" / "ippo").exists()          # planning moves nothing
     again = run_benchmark(out, **dict(kwargs, algos=["ippo"], total_steps=2 * 1024, eval_points=2))
     run = out / "runs" / "simple_navigation" / "ippo"
     assert logs[0].endswith("; 1 of its cells were made with other settings and train again")

@@ -45,6 +45,24 @@ def test_bad_input_is_reported(capsys):
     assert parse_overrides(["a=1", "b=true", "c=safe"]) == {"a": 1, "b": True, "c": "safe"}
 
 
+def test_benchmark_dry_run_lists_the_cells_and_trains_nothing(tmp_path, capsys):
+    out = tmp_path / "bench"
+    args = ["benchmark", "--dry-run", "--algos", "vdn", "mappo", "--scenarios", "simple", "warehouse", "--out", str(out)]
+    assert main(args + ["--total-steps", "2e4", "--seeds", "3"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == f"{out / 'results.json'}: 4 cell(s), 4 new; 240,000 env steps to train (3 seed(s) per cell)"
+    assert len(lines) == 5 and "warehouse" in lines[4] and "mappo" in lines[4] and "20,000 steps/seed  new" in lines[4]
+    assert not out.exists()
+    assert main(args + ["--shard", "1/2"]) == 0            # the recipes' budgets, this process's share
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith(f"{out / 'results-p1.json'}: 2 cell(s)") and "mappo" in lines[1]
+    for bad in ("abc", "1.5", "0", "inf"):
+        with pytest.raises(SystemExit) as exit_:
+            main(args + ["--total-steps", bad])
+        assert exit_.value.code == 2
+        assert f"--total-steps: must be a whole number of env steps >= 1 (e.g. 5e6), got '{bad}'" in capsys.readouterr().err
+
+
 def test_train_writes_a_complete_run_folder(tmp_path):
     out = tmp_path / "run"
     args = ["train", "--scenario", "Warehouse", "--total-steps", "2048", "--seeds", "2", "--out", str(out),
