@@ -310,7 +310,7 @@ def _benchmark_distributed(args) -> int:
 def _report(args) -> int:
     from .report import write_report
 
-    written = write_report(args.results, args.out, reps=args.reps, results_md=args.results_md)
+    written = write_report(args.results, args.out, reps=args.reps, results_md=args.results_md, readme=args.readme)
     print("\n".join(f"written: {p}" for p in written))
     return 0
 
@@ -617,6 +617,8 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--reps", type=int, default=2000, help="bootstrap resamples")
     rp.add_argument("--results-md", default=None, metavar="FILE",
                     help="also write the report as a results page (the project's RESULTS.md)")
+    rp.add_argument("--readme", default=None, metavar="FILE",
+                    help="also rewrite the reward summary of FILE (the project's README.md) between its markers")
     rp.set_defaults(func=_report)
     qs = sub.add_parser("quickstart", help="the main job: train, evaluate, plot and render (a few minutes)")
     qs.add_argument("--out", default="runs/quickstart")

@@ -267,6 +267,48 @@ def training_time(tasks: dict) -> str:
                      for d in sorted(hours, key=lambda d: (-counts[d], d)))
 
 
+SUMMARY_START = "<!-- reward summary: written by marbler-jax report --readme; edit there, not here -->"
+SUMMARY_END = "<!-- end of reward summary -->"
+
+
+def summary_table(results: dict, reps: int = 2000) -> str:
+    """The reward of MARBLER's Table II in one table (scenarios x the paper's algorithms): per cell our best
+    seed (bold where it reaches the paper; :data:`OFF_RECIPE_MARK` where made off the recipe), the IQM over
+    seeds with its 95 % CI, and the paper's value; ``—`` for a cell not run yet. Negative numbers get a
+    typographic minus."""
+    def num(x: float) -> str:
+        return _fmt(x).replace("-", "\u2212")
+
+    tasks = results.get(ENV_NAME, {})
+    algos = [a for a in ALGO_ORDER if any(a in paper for paper in PAPER.values())]
+    lines = ["| reward: ours, best seed (IQM [95 % CI]) / paper | " + " | ".join(a.upper() for a in algos) + " |",
+             "|---|" + "---|" * len(algos)]
+    for scenario in PAPER_SCENARIOS:
+        cells = []
+        for algo in algos:
+            paper = PAPER[scenario][algo]["reward"][0]
+            runs = tasks.get(scenario, {}).get(algo)
+            if runs is None:
+                cells.append(f"— / {num(paper)}")
+                continue
+            best = float(np.mean(episode_values(runs[best_seed_run(runs)][ABSOLUTE], "reward")))
+            iqm, low, high = iqm_ci(run_scores(runs, "reward"), reps)
+            ours = f"**{num(best)}**" if reached("reward", best, paper) else num(best)
+            mark = OFF_RECIPE_MARK if off_recipe(scenario, algo, runs) else ""
+            cells.append(f"{ours}{mark} ({num(iqm)} [{num(low)}, {num(high)}]) / {num(paper)}")
+        lines.append(f"| {scenario.replace('_', ' ').title()} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def replace_summary(text: str, table: str, name: str = "README.md") -> str:
+    """``text`` with the block between :data:`SUMMARY_START` and :data:`SUMMARY_END` replaced by ``table``."""
+    start, end = text.find(SUMMARY_START), text.find(SUMMARY_END)
+    if start < 0 or end < start:
+        raise ValueError(f"{name} has no reward summary to replace: put the lines {SUMMARY_START!r} and "
+                         f"{SUMMARY_END!r} where the table goes")
+    return text[:start + len(SUMMARY_START)] + "\n" + table + text[end:]
+
+
 def report_markdown(results: dict, reps: int = 2000) -> str:
     """The whole report as Markdown, its curves linked as ``curves_<scenario>.png`` beside it."""
     tasks = results.get(ENV_NAME, {})
@@ -311,7 +353,7 @@ over fresh episodes. This file is generated:
 ```bash
 marbler-jax benchmark --devices 2 --out results/marbler-table2     # resumable; cells are independent
 marbler-jax benchmark --scenarios discovery foraging rware --devices 2 --out results/marbler-table2
-marbler-jax report results/marbler-table2 --results-md RESULTS.md
+marbler-jax report results/marbler-table2 --results-md RESULTS.md --readme README.md
 ```
 
 The second command adds JaxRobotarium's three scenarios (rows without paper values). *Success* is the
@@ -325,14 +367,20 @@ every seed; the wall time of each cell is in its runs' `absolute_metrics`.
 
 
 def write_report(folder: str | Path, out: str | Path | None = None, reps: int = 2000,
-                 results_md: str | Path | None = None) -> list[Path]:
-    """``report.md`` and ``curves_<scenario>.png`` of the benchmark in ``folder`` (into ``out``), and with
-    ``results_md`` the same report as the project's results page (image links relative to it)."""
+                 results_md: str | Path | None = None, readme: str | Path | None = None) -> list[Path]:
+    """``report.md`` and ``curves_<scenario>.png`` of the benchmark in ``folder`` (into ``out``), with
+    ``results_md`` the same report as the project's results page (image links relative to it), and with
+    ``readme`` that file's reward summary (:func:`summary_table`, between its markers) rewritten."""
     if not isinstance(reps, int) or reps < 10:
         raise ValueError(f"reps must be an integer >= 10, got {reps!r}")
     folder = Path(folder)
     if not folder.is_dir():
         raise ValueError(f"{folder} is not a benchmark folder")
+    if readme is not None:
+        readme = Path(readme)
+        if not readme.is_file():
+            raise ValueError(f"--readme {readme} is not a file")
+        replace_summary(readme.read_text(), "", readme.name)     # no markers: refused before any work
     results = load_results(folder)
     out = Path(out) if out else folder
     out.mkdir(parents=True, exist_ok=True)
@@ -350,8 +398,11 @@ def write_report(folder: str | Path, out: str | Path | None = None, reps: int = 
         prefix = Path(os.path.relpath(out.resolve(), results_md.resolve().parent)).as_posix() + "/"
         atomic_write(results_md, RESULTS_HEAD + body.replace("](curves_", f"]({prefix}curves_"))
         written.append(results_md)
+    if readme is not None:
+        atomic_write(readme, replace_summary(readme.read_text(), summary_table(results, reps), readme.name))
+        written.append(readme)
     return written
 
 
 __all__ = ["write_report", "report_markdown", "iqm_ci", "probability_of_improvement", "run_scores",
-           "best_seed_run", "metric_table", "shortfall_table", "curve_points", "reached", "off_recipe", "training_time"]
+           "best_seed_run", "metric_table", "shortfall_table", "summary_table", "replace_summary", "curve_points", "reached", "off_recipe", "training_time"]

@@ -114,9 +114,19 @@ def test_report_renders_tables_curves_and_improvement(tmp_path):
     (tmp_path / "results.json").write_text(json.dumps(results))
     docs = tmp_path / "docs"
     docs.mkdir()
-    written = report.write_report(tmp_path, reps=50, results_md=docs / "RESULTS.md")
+    readme = docs / "README.md"
+    readme.write_text(f"# title\n\n{report.SUMMARY_START}\nan old table\n{report.SUMMARY_END}\n\nthe rest\n")
+    written = report.write_report(tmp_path, reps=50, results_md=docs / "RESULTS.md", readme=readme)
     text = (tmp_path / "report.md").read_text()
-    assert [p.name for p in written] == ["report.md", "curves_predator_capture_prey.png", "RESULTS.md"]
+    assert [p.name for p in written] == ["report.md", "curves_predator_capture_prey.png", "RESULTS.md", "README.md"]
+    # the README's reward summary: the best seed bold where it reaches the paper, † off the recipe, — not run
+    summary = readme.read_text().split(report.SUMMARY_START + "\n")[1].split(report.SUMMARY_END)[0]
+    assert readme.read_text().startswith("# title\n\n") and readme.read_text().endswith("\n\nthe rest\n")
+    rows = summary.splitlines()
+    assert rows[0] == "| reward: ours, best seed (IQM [95 % CI]) / paper | VDN | QMIX | QMIX_NS | MAPPO |"
+    assert rows[2].startswith("| Predator Capture Prey | **33.50** (32.00 [") and " / 33.25 | 25.50† (" in rows[2]
+    assert rows[2].endswith(" / 30.02 | — / 31.76 | — / 23.48 |") and len(rows) == 6
+    assert rows[5] == "| Arctic Transport | — / \u22126.98 | — / \u22127.13 | — / \u221211.29 | — / \u22127.23 |"
     page = (docs / "RESULTS.md").read_text()
     assert "marbler-jax report results/marbler-table2 --results-md RESULTS.md" in page
     assert "](../curves_predator_capture_prey.png)" in page             # relative to the page
@@ -128,6 +138,11 @@ def test_report_renders_tables_curves_and_improvement(tmp_path):
     assert (tmp_path / "curves_predator_capture_prey.png").stat().st_size > 1000
     with pytest.raises(ValueError, match="no cell yet"):
         report.report_markdown({})
+    unmarked = docs / "plain.md"
+    unmarked.write_text("no markers\n")
+    with pytest.raises(ValueError, match="plain.md has no reward summary to replace: put the lines"):
+        report.write_report(tmp_path, reps=50, readme=unmarked)
+    assert unmarked.read_text() == "no markers\n"
 
 
 def test_jaxrobotarium_scenarios_follow_the_paper_and_task_metrics_and_success_get_tables():
