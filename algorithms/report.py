@@ -11,8 +11,13 @@ steps; the probability of improvement ``P(X > Y)`` compares two algorithms' runs
 """
 from __future__ import annotations
 
+import contextlib
+import contextvars
+import hashlib
+import json
 import os
 import warnings
+from importlib import metadata
 from pathlib import Path
 
 import numpy as np
@@ -49,19 +54,69 @@ def _rliable():
     return rly, metrics
 
 
-def _bootstrap(score_dict: dict, func, reps: int, seed: int = 0):
+# The bootstrap results of the report being written, by input (see bootstrap_cache); None outside it.
+_CACHE: contextvars.ContextVar[dict | None] = contextvars.ContextVar("bootstrap_cache", default=None)
+CACHE_FILE = ".report-cache.json"
+
+
+@contextlib.contextmanager
+def bootstrap_cache(path: Path):
+    """Within it, :func:`_bootstrap` reuses the results kept in ``path`` for the same statistic of the same
+    scores (the bootstrap is seeded, so a result depends on nothing else), and ``path`` keeps those used.
+    A report after a new cell then bootstraps only what that cell changed; an unreadable file is ignored."""
+    try:
+        kept = json.loads(path.read_text()) if path.exists() else {}
+    except (OSError, json.JSONDecodeError):
+        kept = {}
+    kept = kept if isinstance(kept, dict) else {}
+    used: dict = {}
+    token = _CACHE.set({"kept": kept, "used": used})
+    try:
+        yield
+    except BaseException:
+        atomic_write(path, json.dumps({**kept, **used}))      # an interrupted report loses nothing computed
+        raise
+    else:
+        atomic_write(path, json.dumps(used))
+    finally:
+        _CACHE.reset(token)
+
+
+def _cache_key(statistic: str, score_dict: dict, reps: int, seed: int) -> str:
+    digest = hashlib.sha256(json.dumps([statistic, reps, seed, metadata.version("rliable"),
+                                        metadata.version("arch")]).encode())
+    for name in sorted(score_dict):
+        arrays = score_dict[name] if isinstance(score_dict[name], list) else [score_dict[name]]
+        for array in arrays:
+            array = np.ascontiguousarray(array, np.float64)
+            digest.update(f"{name}{array.shape}".encode() + array.tobytes())
+    return digest.hexdigest()
+
+
+def _bootstrap(score_dict: dict, func, reps: int, seed: int = 0, statistic: str | None = None):
     """rliable's ``get_interval_estimates`` (95 % percentile CIs), reproducible: its stratified bootstrap
     draws run indices from numpy's global generator whatever ``random_state`` says, so that generator is
-    seeded for the call and restored after it."""
+    seeded for the call and restored after it. ``statistic`` names what ``func`` computes; with it, a result
+    is taken from (and kept in) the :func:`bootstrap_cache` in force."""
+    cache = _CACHE.get()
+    key = _cache_key(statistic, score_dict, reps, seed) if cache is not None and statistic else None
+    if key is not None and (key in cache["used"] or key in cache["kept"]):
+        point, interval = cache["used"].setdefault(key, cache["kept"].get(key))
+        return ({k: np.asarray(v) for k, v in point.items()}, {k: np.asarray(v) for k, v in interval.items()})
     rly, _ = _rliable()
     saved = np.random.get_state()
     np.random.seed(seed)
     try:
         with warnings.catch_warnings():      # arch deprecates the RandomState that rliable hands it
             warnings.simplefilter("ignore", FutureWarning)
-            return rly.get_interval_estimates(score_dict, func, reps=reps, random_state=np.random.RandomState(seed))
+            point, interval = rly.get_interval_estimates(score_dict, func, reps=reps,
+                                                         random_state=np.random.RandomState(seed))
     finally:
         np.random.set_state(saved)
+    if key is not None:
+        cache["used"][key] = [{k: np.asarray(v).tolist() for k, v in point.items()},
+                              {k: np.asarray(v).tolist() for k, v in interval.items()}]
+    return point, interval
 
 
 def episode_values(entry: dict, metric: str) -> np.ndarray | None:
@@ -87,7 +142,7 @@ def iqm_ci(scores: np.ndarray, reps: int = 2000, seed: int = 0) -> tuple[float, 
     """``(IQM, low, high)`` of ``scores [runs]`` with a 95 % bootstrap CI over runs (rliable)."""
     _, metrics = _rliable()
     point, interval = _bootstrap({"x": np.asarray(scores, float)[:, None]},
-                                 lambda x: np.array([metrics.aggregate_iqm(x)]), reps, seed)
+                                 lambda x: np.array([metrics.aggregate_iqm(x)]), reps, seed, "iqm")
     return float(point["x"][0]), float(interval["x"][0, 0]), float(interval["x"][1, 0])
 
 
@@ -101,7 +156,8 @@ def probability_of_improvement(x: np.ndarray, y: np.ndarray, reps: int = 2000,
     """``(P(X > Y), low, high)`` for run scores ``x [n]``, ``y [m]`` (ties count one half), 95 % CI."""
     _, metrics = _rliable()
     point, interval = _bootstrap({"xy": [np.asarray(x, float)[:, None], np.asarray(y, float)[:, None]]},
-                                 lambda a, b: np.array([metrics.probability_of_improvement(a, b)]), reps, seed)
+                                 lambda a, b: np.array([metrics.probability_of_improvement(a, b)]), reps, seed,
+                                 "probability_of_improvement")
     return float(point["xy"][0]), float(interval["xy"][0, 0]), float(interval["xy"][1, 0])
 
 
@@ -235,7 +291,8 @@ def plot_curves(scenario: str, runs_by_algo: dict, png: Path, reps: int) -> None
         steps, scores = curve_points(runs_by_algo[algo])
         point, interval = _bootstrap(
             {algo: scores[:, None, :]},
-            lambda x: np.array([metrics.aggregate_iqm(x[..., j]) for j in range(x.shape[-1])]), reps)
+            lambda x: np.array([metrics.aggregate_iqm(x[..., j]) for j in range(x.shape[-1])]), reps,
+            statistic="iqm_per_point")
         line, = ax.plot(steps, point[algo], lw=1.6, label=f"{algo} ({scores.shape[0]} seeds)")
         ax.fill_between(steps, interval[algo][0], interval[algo][1], color=line.get_color(), alpha=0.2)
         paper = PAPER.get(scenario, {}).get(algo)
@@ -385,22 +442,23 @@ def write_report(folder: str | Path, out: str | Path | None = None, reps: int = 
     out = Path(out) if out else folder
     out.mkdir(parents=True, exist_ok=True)
     written = []
-    for scenario, runs_by_algo in results.get(ENV_NAME, {}).items():
-        png = out / f"curves_{scenario}.png"
-        plot_curves(scenario, runs_by_algo, png, reps)
-        written.append(png)
-    report = out / "report.md"
-    body = report_markdown(results, reps)          # the bootstraps run once for both documents
-    atomic_write(report, "## MARBLER benchmark\n\n" + body)
-    written.insert(0, report)
-    if results_md:
-        results_md = Path(results_md)
-        prefix = Path(os.path.relpath(out.resolve(), results_md.resolve().parent)).as_posix() + "/"
-        atomic_write(results_md, RESULTS_HEAD + body.replace("](curves_", f"]({prefix}curves_"))
-        written.append(results_md)
-    if readme is not None:
-        atomic_write(readme, replace_summary(readme.read_text(), summary_table(results, reps), readme.name))
-        written.append(readme)
+    with bootstrap_cache(out / CACHE_FILE):
+        for scenario, runs_by_algo in results.get(ENV_NAME, {}).items():
+            png = out / f"curves_{scenario}.png"
+            plot_curves(scenario, runs_by_algo, png, reps)
+            written.append(png)
+        report = out / "report.md"
+        body = report_markdown(results, reps)          # the bootstraps run once for both documents
+        atomic_write(report, "## MARBLER benchmark\n\n" + body)
+        written.insert(0, report)
+        if results_md:
+            results_md = Path(results_md)
+            prefix = Path(os.path.relpath(out.resolve(), results_md.resolve().parent)).as_posix() + "/"
+            atomic_write(results_md, RESULTS_HEAD + body.replace("](curves_", f"]({prefix}curves_"))
+            written.append(results_md)
+        if readme is not None:
+            atomic_write(readme, replace_summary(readme.read_text(), summary_table(results, reps), readme.name))
+            written.append(readme)
     return written
 
 

@@ -145,6 +145,37 @@ def test_report_renders_tables_curves_and_improvement(tmp_path):
     assert unmarked.read_text() == "no markers\n"
 
 
+def test_a_second_report_bootstraps_only_what_changed(tmp_path, monkeypatch):
+    from rliable import library
+
+    calls = []
+    original = library.get_interval_estimates
+    monkeypatch.setattr(library, "get_interval_estimates", lambda *a, **kw: calls.append(1) or original(*a, **kw))
+    results = {ENV_NAME: {"warehouse": {"vdn": _runs([[30.0, 31.0], [20.0, 22.0], [25.0, 24.0]]),
+                                        "qmix": _runs([[10.0, 12.0], [15.0, 14.0], [20.0, 19.0]])}}}
+    (tmp_path / "results.json").write_text(json.dumps(results))
+    report.write_report(tmp_path, reps=50)
+    first, cold = (tmp_path / "report.md").read_text(), len(calls)
+    assert cold > 0 and (tmp_path / report.CACHE_FILE).exists()
+    calls.clear()
+    report.write_report(tmp_path, reps=50)
+    assert not calls and (tmp_path / "report.md").read_text() == first      # the same numbers, none recomputed
+    results[ENV_NAME]["warehouse"]["qmix"] = _runs([[11.0, 12.0], [15.0, 14.0], [20.0, 19.0]])
+    (tmp_path / "results.json").write_text(json.dumps(results))
+    report.write_report(tmp_path, reps=50)
+    text = (tmp_path / "report.md").read_text()
+    vdn_row = next(line for line in first.splitlines() if line.startswith("| warehouse | vdn"))
+    assert vdn_row in text and text != first
+    assert len(calls) == 4          # the changed cell's curve and reward, P(vdn > qmix) and P(qmix > vdn)
+    calls.clear()
+    report.write_report(tmp_path, reps=60)
+    assert len(calls) == cold                                                # other bootstraps: all again
+    (tmp_path / report.CACHE_FILE).write_text("{not json")                    # a damaged cache is ignored
+    calls.clear()
+    report.write_report(tmp_path, reps=50)
+    assert len(calls) == cold and (tmp_path / "report.md").read_text() == text
+
+
 def test_jaxrobotarium_scenarios_follow_the_paper_and_task_metrics_and_success_get_tables():
     from marbler_jax_rl.recipes import RECIPES
 
