@@ -36,7 +36,7 @@ import jax
 import numpy as np
 
 import marbler_jax
-from .driver import (ALGORITHMS, TESTS_FILE, atomic_write, build_config, changed_settings,
+from .driver import (ALGORITHMS, TESTS_FILE, atomic_write, build_config, changed_settings, has_setting,
                      make_tester, run_config, seed_best_scores, train)
 from .recipes import recipe, settings_digest
 from marbler_jax.registry import canonical_name
@@ -115,12 +115,23 @@ def add_cell(path: Path, scenario: str, algo: str, runs: dict) -> dict:
         os.close(folder)         # closing the descriptor releases the lock
 
 
-def cell_settings(chosen, scenario: str, total_steps: int | None = None,
-                  env_overrides: dict | None = None) -> tuple[dict, dict, int]:
+def cell_settings(chosen, scenario: str, total_steps: int | None = None, env_overrides: dict | None = None,
+                  hp_overrides: dict | None = None) -> tuple[dict, dict, int]:
     """``(env_overrides, hyperparameters, steps)`` a cell trains with: recipe ``chosen`` on ``scenario``,
-    its step budget replaced by ``total_steps`` and ``env_overrides`` on top of its env settings where given."""
+    its step budget replaced by ``total_steps``, ``env_overrides`` on top of its env settings and those of
+    ``hp_overrides`` that its algorithm has on top of its hyperparameters, where given."""
     env, hp, steps = chosen.settings(scenario)
+    hp.update({k: v for k, v in (hp_overrides or {}).items() if has_setting(chosen.algo, k)})
     return dict(env, **(env_overrides or {})), hp, int(total_steps or steps)
+
+
+def check_hp_overrides(hp_overrides: dict, algos) -> None:
+    """Refuse a hyperparameter override that no algorithm of ``algos`` has, or that another option sets."""
+    for name in hp_overrides:
+        if name in ("total_timesteps", "learner_devices"):
+            raise ValueError(f"--hp {name}: set it with {'--total-steps' if name == 'total_timesteps' else '--devices'}")
+        if not any(has_setting(algo, name) for algo in algos):
+            raise ValueError(f"--hp {name}: none of the algorithms {sorted(set(algos))} has this setting")
 
 
 def cell_digest(runs: dict) -> str | None:
@@ -194,10 +205,12 @@ def latest_checkpoint(run: Path) -> int | None:
 
 def plan_cells(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS, seeds: int = 5,
                total_steps: int | None = None, test_episodes: int = 64, seed: int = 0, process_index: int = 0,
-               process_count: int = 1, recipes=None, env_overrides: dict | None = None) -> list[CellPlan]:
+               process_count: int = 1, recipes=None, env_overrides: dict | None = None,
+               hp_overrides: dict | None = None) -> list[CellPlan]:
     """This process's cells in ``out`` (arguments as :func:`run_benchmark`'s) and what a run would do with
     each; reads the results file and run folders, writes nothing."""
     recipes = dict(recipes or {})
+    check_hp_overrides(hp_overrides or {}, algos)
     cells = grid(algos, scenarios, process_index, process_count)
     path = Path(out) / results_name(process_index, process_count)
     results = json.loads(path.read_text()) if path.exists() else {}
@@ -205,7 +218,7 @@ def plan_cells(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS, se
     plans = []
     for scenario, algo in cells:
         env_settings, hp, steps = cell_settings(recipes.get(algo) or recipe(algo), scenario, total_steps,
-                                                env_overrides)
+                                                env_overrides, hp_overrides)
         digest = settings_digest(env_settings, hp, steps)
         env = marbler_jax.make(scenario, **env_settings)
         cfg = build_config(algo, dict(hp, total_timesteps=steps))
@@ -285,14 +298,15 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
                   total_steps: int | None = None, eval_points: int = 20, test_episodes: int = 64,
                   absolute_factor: int = 10, devices: int = 1, seed: int = 0, progress: bool = True,
                   process_index: int = 0, process_count: int = 1, recipes=None, log=print, on_chunk=None,
-                  env_overrides: dict | None = None) -> dict:
+                  env_overrides: dict | None = None, hp_overrides: dict | None = None) -> dict:
     """Train and evaluate this process's share of the grid into ``out``; returns its results dict.
     ``devices > 1`` spreads each cell over that many devices (on a CPU, ask for them with
     :func:`marbler_jax_rl.data_parallel.use_cpu_devices` first) through the algorithm's
     ``learner_devices``: value-based algorithms split each gradient step, PPO algorithms each rollout's
     envs and each minibatch; either way every seed trains as on one device, up to float rounding.
     ``recipes``: ``{algo: Recipe}`` instead of :data:`marbler_jax_rl.recipes.RECIPES`; ``env_overrides``:
-    env settings on top of every recipe's (e.g. ``{"control_period": 15}``)."""
+    env settings on top of every recipe's (e.g. ``{"control_period": 15}``); ``hp_overrides``:
+    hyperparameters on top of the recipe of every algorithm that has them (e.g. ``{"hidden": 64}``)."""
     for name, value, low in (("seeds", seeds, 1), ("eval_points", eval_points, 1), ("test_episodes", test_episodes, 1),
                              ("absolute_factor", absolute_factor, 1), ("devices", devices, 1)):
         if not isinstance(value, int) or value < low:
@@ -305,7 +319,7 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
                          f"marbler_jax_rl.data_parallel.use_cpu_devices({devices}) (marbler-jax benchmark does)")
     # a bad setting (an unknown algorithm, scenario or env override) fails here, before any cell trains
     plans = plan_cells(out, algos, scenarios, seeds, total_steps, test_episodes, seed, process_index, process_count,
-                       recipes, env_overrides)
+                       recipes, env_overrides, hp_overrides)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / results_name(process_index, process_count)

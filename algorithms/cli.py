@@ -94,14 +94,15 @@ def _plot(trace, goals, params, path):
     plt.close(fig)
 
 
-def parse_overrides(pairs: list[str]) -> dict:
-    """``["key=value", ...]`` -> dict; values parsed as JSON when possible (numbers, true/false)."""
+def parse_overrides(pairs: list[str], flag: str = "--set") -> dict:
+    """``["key=value", ...]`` (the values of option ``flag``) -> dict; values parsed as JSON when possible
+    (numbers, true/false)."""
     import json
 
     out = {}
     for pair in pairs or []:
         if "=" not in pair:
-            raise ValueError(f"--set expects key=value, got {pair!r}")
+            raise ValueError(f"{flag} expects key=value, got {pair!r}")
         key, value = pair.split("=", 1)
         try:
             out[key] = json.loads(value)
@@ -200,7 +201,7 @@ def _train(args) -> int:
 
     env_overrides, hp, steps = settings(args.preset, canonical_name(args.scenario), args.algo)
     env_overrides.update(parse_overrides(args.set))
-    hp.update(parse_overrides(args.hp))
+    hp.update(parse_overrides(args.hp, "--hp"))
     from .data_parallel import use_cpu_devices
 
     # before JAX first runs: a CPU split into the devices the run is spread over
@@ -222,13 +223,14 @@ def _train(args) -> int:
 def _benchmark(args) -> int:
     shard = _parse_shard(args.shard)
     total = args.total_steps
+    env_overrides, hp_overrides = parse_overrides(args.set), parse_overrides(args.hp, "--hp")
     if args.dry_run:
         if args.coordinator:
             raise ValueError("--dry-run shows one process's cells: give --shard I/N instead of --coordinator")
         from .benchmark import describe_plan, plan_cells, results_name
 
         plans = plan_cells(args.out, args.algos, args.scenarios, args.seeds, total, args.test_episodes, args.seed,
-                           *shard, env_overrides=parse_overrides(args.set))
+                           *shard, env_overrides=env_overrides, hp_overrides=hp_overrides)
         print(describe_plan(plans, args.seeds, str(Path(args.out) / results_name(*shard))))
         return 0
     if args.coordinator:
@@ -243,7 +245,7 @@ def _benchmark(args) -> int:
 
     run_benchmark(args.out, args.algos, args.scenarios, args.seeds, total, args.eval_points, args.test_episodes,
                   args.absolute_factor, args.devices, args.seed, progress=not args.no_progress,
-                  process_index=shard[0], process_count=shard[1], env_overrides=parse_overrides(args.set))
+                  process_index=shard[0], process_count=shard[1], env_overrides=env_overrides, hp_overrides=hp_overrides)
     print(f"results: {args.out}; tables and curves: marbler-jax report {args.out}")
     return 0
 
@@ -588,6 +590,9 @@ def build_parser() -> argparse.ArgumentParser:
     bm.add_argument("--set", action="append", metavar="KEY=VALUE",
                     help="env config override for every cell, on top of the recipe's (repeatable), e.g. "
                          "control_period=15; the report marks such cells as trained off the recipe")
+    bm.add_argument("--hp", action="append", metavar="KEY=VALUE",
+                    help="algorithm setting on top of the recipe of every algorithm that has it (repeatable), e.g. "
+                         "hidden=64; the report marks such cells as trained off the recipe")
     bm.add_argument("--eval-points", type=int, default=20, help="greedy tests during training")
     bm.add_argument("--test-episodes", type=int, default=64, help="episodes per seed at each test")
     bm.add_argument("--absolute-factor", type=int, default=10,

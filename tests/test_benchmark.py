@@ -263,7 +263,7 @@ def test_tiny_benchmark_writes_resumes_and_reports(tmp_path):
     logs.clear()
     run_benchmark(out, **kwargs)                       # all done: nothing trains
     assert logs == [f"benchmark: 2 cell(s) for this process, 2 already in {out / 'results.json'}"]
-    # another budget is another setting (as is an env override: test_env_overrides_are_part_of_a_cells_settings):
+    # another budget is another setting (as is an env override: test_env_and_hp_overrides_are_part_of_a_cells_settings):
     # the IPPO cell trains again, its earlier run folder set aside, not deleted
     logs.clear()
     plans = benchmark.plan_cells(out, **dict(plan_args, algos=["ippo"], total_steps=2 * 1024))
@@ -278,9 +278,10 @@ def test_tiny_benchmark_writes_resumes_and_reports(tmp_path):
     assert again[ENV_NAME]["simple_navigation"]["mappo"] == runs           # the other cell is kept
 
 
-def test_env_overrides_are_part_of_a_cells_settings():
-    """``benchmark --set KEY=VALUE``: the override replaces the recipe's env setting and changes the cell's
-    digest, so a results cell made without it counts as made with other settings (and trains again)."""
+def test_env_and_hp_overrides_are_part_of_a_cells_settings():
+    """``benchmark --set KEY=VALUE`` (and ``--hp``): the override replaces the recipe's env setting
+    (hyperparameter) and changes the cell's digest, so a results cell made without it counts as made with
+    other settings (and trains again)."""
     from marbler_jax_rl import recipes
 
     chosen = recipes.recipe("mappo")
@@ -291,6 +292,17 @@ def test_env_overrides_are_part_of_a_cells_settings():
     assert recipes.settings_digest(*plain) == chosen.digest("predator_capture_prey")
     assert recipes.settings_digest(*marbler_loop) != recipes.settings_digest(*plain)
     assert benchmark.cell_settings(chosen, "warehouse", total_steps=5)[2] == 5
+    # benchmark --hp: on top of the recipe of each algorithm that has the setting, and part of the digest
+    wider = benchmark.cell_settings(chosen, "predator_capture_prey", hp_overrides={"hidden": 64, "td_lambda": 0.5})
+    assert wider[1] == dict(plain[1], hidden=64) and recipes.settings_digest(*wider) != recipes.settings_digest(*plain)
+    vdn = benchmark.cell_settings(recipes.recipe("vdn"), "warehouse", hp_overrides={"hidden": 64, "td_lambda": 0.5})
+    assert vdn[1]["hidden"] == 64 and vdn[1]["td_lambda"] == 0.5
+    assert chosen.config.hidden == 128 and "td_lambda" not in plain[1]     # the recipe itself is untouched
+    with pytest.raises(ValueError, match=r"--hp td_lambda: none of the algorithms \['ippo', 'mappo'\] has this setting"):
+        benchmark.check_hp_overrides({"td_lambda": 0.5}, ["mappo", "ippo"])
+    for name, option in (("learner_devices", "--devices"), ("total_timesteps", "--total-steps")):
+        with pytest.raises(ValueError, match=f"--hp {name}: set it with {option}"):
+            benchmark.check_hp_overrides({name: 2}, ["vdn"])
 
 
 def test_benchmark_rejects_bad_settings(tmp_path):
