@@ -650,6 +650,10 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print(f"marbler-jax: interrupted{_resume_hint(args)}", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # the reader of stdout left (e.g. `| head`): nothing more to say, and nothing to flush at exit
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
 
 
 def _resume_hint(args) -> str:

@@ -68,6 +68,28 @@ def test_benchmark_dry_run_lists_the_cells_and_trains_nothing(tmp_path, capsys):
         assert f"--total-steps: must be a whole number of env steps >= 1 (e.g. 5e6), got '{bad}'" in capsys.readouterr().err
 
 
+def test_output_into_a_closed_pipe_ends_quietly(tmp_path, monkeypatch, capsys):
+    """``marbler-jax list | head -1``: the reader leaves early, which is no error and prints no traceback."""
+    class ClosedPipe:
+        def __init__(self):
+            self.file = open(tmp_path / "stdout", "w")
+
+        def write(self, text):
+            raise BrokenPipeError(32, "Broken pipe")
+
+        def flush(self):
+            pass
+
+        def fileno(self):
+            return self.file.fileno()
+
+    pipe = ClosedPipe()
+    monkeypatch.setattr("sys.stdout", pipe)
+    assert main(["list"]) == 0
+    pipe.file.close()
+    assert capsys.readouterr().err == ""
+
+
 def test_train_writes_a_complete_run_folder(tmp_path):
     out = tmp_path / "run"
     args = ["train", "--scenario", "Warehouse", "--total-steps", "2048", "--seeds", "2", "--out", str(out),
