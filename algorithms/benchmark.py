@@ -196,6 +196,13 @@ class CellPlan:
     replaces: bool = False
 
 
+def check_counts(**counts) -> None:
+    """Refuse a count (seeds, episodes, devices, ...) that is not an integer >= 1, by name."""
+    for name, value in counts.items():
+        if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+            raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+
+
 def latest_checkpoint(run: Path) -> int | None:
     """The update of the newest checkpoint folder in ``run/checkpoints`` (None where there is none)."""
     folder = Path(run) / "checkpoints"
@@ -210,6 +217,9 @@ def plan_cells(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS, se
     """This process's cells in ``out`` (arguments as :func:`run_benchmark`'s) and what a run would do with
     each; reads the results file and run folders, writes nothing."""
     recipes = dict(recipes or {})
+    check_counts(seeds=seeds, test_episodes=test_episodes)
+    if total_steps is not None and total_steps < 1:
+        raise ValueError(f"total_steps must be >= 1, got {total_steps}")
     check_hp_overrides(hp_overrides or {}, algos)
     cells = grid(algos, scenarios, process_index, process_count)
     path = Path(out) / results_name(process_index, process_count)
@@ -307,12 +317,7 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
     ``recipes``: ``{algo: Recipe}`` instead of :data:`marbler_jax_rl.recipes.RECIPES`; ``env_overrides``:
     env settings on top of every recipe's (e.g. ``{"control_period": 15}``); ``hp_overrides``:
     hyperparameters on top of the recipe of every algorithm that has them (e.g. ``{"hidden": 64}``)."""
-    for name, value, low in (("seeds", seeds, 1), ("eval_points", eval_points, 1), ("test_episodes", test_episodes, 1),
-                             ("absolute_factor", absolute_factor, 1), ("devices", devices, 1)):
-        if not isinstance(value, int) or value < low:
-            raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
-    if total_steps is not None and total_steps < 1:
-        raise ValueError(f"total_steps must be >= 1, got {total_steps}")
+    check_counts(eval_points=eval_points, absolute_factor=absolute_factor, devices=devices)
     if devices > jax.local_device_count():
         raise ValueError(f"devices={devices} but this process has {jax.local_device_count()} JAX device(s) "
                          f"({jax.local_devices()[0].platform}); on a CPU ask for them first with "

@@ -310,6 +310,10 @@ def test_benchmark_rejects_bad_settings(tmp_path):
         run_benchmark(tmp_path, seeds=0)
     with pytest.raises(ValueError, match="total_steps must be >= 1"):
         run_benchmark(tmp_path, total_steps=-5)
+    with pytest.raises(ValueError, match="test_episodes must be an integer >= 1, got 0"):   # the dry run's plan too
+        benchmark.plan_cells(tmp_path, test_episodes=0)
+    with pytest.raises(ValueError, match="seeds must be an integer >= 1, got True"):
+        benchmark.plan_cells(tmp_path, seeds=True)
     with pytest.raises(ValueError, match=r"control_period must be a positive integer, got 0"):
         run_benchmark(tmp_path / "bad", scenarios=["warehouse"], env_overrides={"control_period": 0})
     assert not (tmp_path / "bad").exists()
