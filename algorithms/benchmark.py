@@ -268,7 +268,8 @@ def describe_plan(plans: list[CellPlan], seeds: int, where: str) -> str:
                 "resume": f"resume from update {plan.checkpoint} of {plan.updates}"}[plan.status]
         if plan.replaces:
             what += "; replaces its cell made with other settings"
-        lines.append(f"{k:>3}/{len(plans)}  {plan.scenario:<{width}}  {plan.algo:<7}  {plan.steps:>12,} steps/seed  {what}")
+        lines.append(f"{k:>3}/{len(plans)}  {plan.scenario:<{width}}  {plan.algo:<7}  {plan.steps:>12,} steps/seed  "
+                     + what)
     return "\n".join(lines)
 
 
@@ -337,7 +338,7 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
     results = json.loads(path.read_text()) if path.exists() else {}
     for i, plan in enumerate(todo):
         k = len(plans) - len(todo) + i + 1
-        scenario, algo, env_settings, steps, digest = plan.scenario, plan.algo, plan.env_settings, plan.steps, plan.digest
+        scenario, algo, env_settings, steps = plan.scenario, plan.algo, plan.env_settings, plan.steps
         hp = dict(plan.hp)
         if devices > 1:
             hp["learner_devices"] = devices
@@ -361,7 +362,7 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
               progress=progress, log=log, test_episodes=test_episodes, on_chunk=chunk_saved)
         greedy = ALGORITHMS[algo][2]
         runs = cell_runs(run, env, lambda p: greedy(env, cfg, p), seeds, absolute_factor * test_episodes,
-                         jax.random.PRNGKey(seed + 2024), digest)
+                         jax.random.PRNGKey(seed + 2024), plan.digest)
         seconds = clock.save()
         for entry in runs.values():
             entry[ABSOLUTE]["wall_seconds"] = [round(seconds, 1)]
@@ -375,5 +376,6 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
     return results
 
 
-__all__ = ["run_benchmark", "plan_cells", "CellPlan", "CELL_STATUSES", "load_results", "add_cell", "finished_cells", "grid", "results_name", "PAPER_ALGOS",
-           "PAPER_SCENARIOS", "JAXROBOTARIUM_SCENARIOS", "ENV_NAME"]
+__all__ = ["run_benchmark", "plan_cells", "describe_plan", "CellPlan", "CELL_STATUSES", "load_results", "add_cell",
+           "finished_cells", "grid", "results_name", "PAPER_ALGOS", "PAPER_SCENARIOS", "JAXROBOTARIUM_SCENARIOS",
+           "ENV_NAME"]

@@ -222,15 +222,14 @@ def _train(args) -> int:
 
 def _benchmark(args) -> int:
     shard = _parse_shard(args.shard)
-    total = args.total_steps
     env_overrides, hp_overrides = parse_overrides(args.set), parse_overrides(args.hp, "--hp")
     if args.dry_run:
         if args.coordinator:
             raise ValueError("--dry-run shows one process's cells: give --shard I/N instead of --coordinator")
         from .benchmark import describe_plan, plan_cells, results_name
 
-        plans = plan_cells(args.out, args.algos, args.scenarios, args.seeds, total, args.test_episodes, args.seed,
-                           *shard, env_overrides=env_overrides, hp_overrides=hp_overrides)
+        plans = plan_cells(args.out, args.algos, args.scenarios, args.seeds, args.total_steps, args.test_episodes,
+                           args.seed, *shard, env_overrides=env_overrides, hp_overrides=hp_overrides)
         print(describe_plan(plans, args.seeds, str(Path(args.out) / results_name(*shard))))
         return 0
     if args.coordinator:
@@ -243,9 +242,10 @@ def _benchmark(args) -> int:
         use_cpu_devices(args.devices)        # before JAX first runs
     from .benchmark import run_benchmark
 
-    run_benchmark(args.out, args.algos, args.scenarios, args.seeds, total, args.eval_points, args.test_episodes,
-                  args.absolute_factor, args.devices, args.seed, progress=not args.no_progress,
-                  process_index=shard[0], process_count=shard[1], env_overrides=env_overrides, hp_overrides=hp_overrides)
+    run_benchmark(args.out, args.algos, args.scenarios, args.seeds, args.total_steps, args.eval_points,
+                  args.test_episodes, args.absolute_factor, args.devices, args.seed, progress=not args.no_progress,
+                  process_index=shard[0], process_count=shard[1], env_overrides=env_overrides,
+                  hp_overrides=hp_overrides)
     print(f"results: {args.out}; tables and curves: marbler-jax report {args.out}")
     return 0
 
@@ -521,7 +521,8 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--preset", default="recipe", choices=list(RECIPE_NAMES),
                     help="settings to start from (recipe: the algorithm's benchmark recipe, algorithms/recipes.py; "
                          "paper: MARBLER's EPyMARL settings; none: the algorithm's defaults)")
-    tr.add_argument("--total-steps", type=env_steps, default=None, help="env steps per seed (e.g. 5e6; default: the recipe's)")
+    tr.add_argument("--total-steps", type=env_steps, default=None,
+                    help="env steps per seed (e.g. 5e6; default: the recipe's)")
     tr.add_argument("--seeds", type=int, default=1, help="seeds trained in one vmapped program")
     tr.add_argument("--seed", type=int, default=0,
                     help="base PRNG seed: the seeds' keys are split from PRNGKey(seed) (default 0)")
@@ -586,7 +587,8 @@ def build_parser() -> argparse.ArgumentParser:
     bm.add_argument("--scenarios", nargs="+", default=list(PAPER_SCENARIOS))
     bm.add_argument("--seeds", type=int, default=5, help="seeds per cell, trained in one vmapped program")
     bm.add_argument("--out", default="results/marbler-table2", help="results folder (results.json, runs/)")
-    bm.add_argument("--total-steps", type=env_steps, default=None, help="env steps per seed for every cell (default: each recipe's)")
+    bm.add_argument("--total-steps", type=env_steps, default=None,
+                    help="env steps per seed for every cell (default: each recipe's)")
     bm.add_argument("--set", action="append", metavar="KEY=VALUE",
                     help="env config override for every cell, on top of the recipe's (repeatable), e.g. "
                          "control_period=15; the report marks such cells as trained off the recipe")
