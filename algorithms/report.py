@@ -324,6 +324,36 @@ def training_time(tasks: dict) -> str:
                      for d in sorted(hours, key=lambda d: (-counts[d], d)))
 
 
+def time_table(results: dict) -> str:
+    """Each cell's env steps, the device(s) that trained it, its training time (updates only) and wall time
+    (everything its processes did or waited for, over every invocation), and the sums over the cells."""
+    tasks = results.get(ENV_NAME, {})
+    rows, train_total, wall_total, walls = [], 0.0, 0.0, 0
+    for scenario in _ordered(tasks, SCENARIO_ORDER):
+        for algo in _ordered(tasks[scenario], ALGO_ORDER):
+            runs = tasks[scenario][algo]
+            first = next(iter(runs.values()))[ABSOLUTE]
+            train = first.get("train_seconds", [0.0])[0]
+            wall = first.get("wall_seconds", [None])[0]
+            train_total += train
+            wall_total += wall or 0.0
+            walls += wall is not None
+            mark = OFF_RECIPE_MARK if off_recipe(scenario, algo, runs) else ""
+            rows.append(f"| {scenario} | {algo}{mark} | {first['env_steps'][0] / 1e6:.1f}M | "
+                        f"{first.get('device', [UNRECORDED_DEVICE])[0]} | {train / 60:.1f} min | "
+                        + (f"{wall / 60:.1f} min |" if wall is not None else "— |"))
+    cells = len(rows)
+    rows.append(f"| all {cells} cells | | | | {train_total / 3600:.2f} h | {wall_total / 3600:.2f} h"
+                + (f" ({walls} of {cells} cells recorded)" if walls < cells else "") + " |")
+    head = ["### Time per cell", "",
+            "*Training*: the updates alone; *wall time*: everything the cell's processes did or waited for "
+            "(compilation, greedy tests, checkpoints, the final evaluation, other processes on the same CPU), "
+            "summed over the invocations that trained it.", "",
+            "| scenario | algorithm | env steps / seed | device | training | wall time |",
+            "|---|---|---|---|---|---|"]
+    return "\n".join(head + rows) + "\n"
+
+
 SUMMARY_START = "<!-- reward summary: written by marbler-jax report --readme; edit there, not here -->"
 SUMMARY_END = "<!-- end of reward summary -->"
 
@@ -392,6 +422,7 @@ def report_markdown(results: dict, reps: int = 2000) -> str:
     missing = [f"{a} on {s}" for s in PAPER_SCENARIOS for a in PAPER_ALGOS if a not in tasks.get(s, {})]
     if missing:
         parts += ["### Cells not in the results yet", "", ", ".join(missing) + ".", ""]
+    parts += [time_table(results), ""]
     parts.append("### Sample efficiency and probability of improvement\n")
     for scenario in _ordered(tasks, SCENARIO_ORDER):
         parts += [f"#### {scenario}", "", f"![{scenario}](curves_{scenario}.png)", ""]
@@ -463,4 +494,4 @@ def write_report(folder: str | Path, out: str | Path | None = None, reps: int = 
 
 
 __all__ = ["write_report", "report_markdown", "iqm_ci", "probability_of_improvement", "run_scores",
-           "best_seed_run", "metric_table", "shortfall_table", "summary_table", "replace_summary", "curve_points", "reached", "off_recipe", "training_time"]
+           "best_seed_run", "metric_table", "shortfall_table", "summary_table", "time_table", "replace_summary", "curve_points", "reached", "off_recipe", "training_time"]

@@ -111,6 +111,8 @@ def test_report_renders_tables_curves_and_improvement(tmp_path):
     results = {ENV_NAME: {"predator_capture_prey": {
         "vdn": _runs([[33.0, 34.0], [30.0, 31.0]], recipe=current),
         "qmix": _runs([[20.0, 21.0], [25.0, 26.0]], recipe=current)}}}    # VDN's recipe made the QMIX cell
+    for run in results[ENV_NAME]["predator_capture_prey"]["vdn"].values():
+        run[ABSOLUTE].update(wall_seconds=[120.0], device=["cpu"])
     (tmp_path / "results.json").write_text(json.dumps(results))
     docs = tmp_path / "docs"
     docs.mkdir()
@@ -135,6 +137,10 @@ def test_report_renders_tables_curves_and_improvement(tmp_path):
     assert "| predator_capture_prey | qmix† | 2 |" in text and "† trained with other settings" in text
     assert "| 33.50 ± 0.50 | 33.25 ± 0.46 | yes |" in text       # best seed run_0 against the paper
     assert "| qmix | 0.00 [0.00, 0.00] | — |" in text              # P(qmix > vdn)
+    times = text.split("### Time per cell")[1].split("###")[0]
+    assert "| predator_capture_prey | vdn | 0.0M | cpu | 0.2 min | 2.0 min |" in times
+    assert "| predator_capture_prey | qmix† | 0.0M | device not recorded | 0.2 min | — |" in times
+    assert "| all 2 cells | | | | 0.01 h | 0.03 h (1 of 2 cells recorded) |" in times
     assert (tmp_path / "curves_predator_capture_prey.png").stat().st_size > 1000
     with pytest.raises(ValueError, match="no cell yet"):
         report.report_markdown({})
