@@ -36,6 +36,7 @@ import jax
 import numpy as np
 
 import marbler_jax
+from .checkpoints import latest_step
 from .driver import (ALGORITHMS, TESTS_FILE, atomic_write, build_config, changed_settings, has_setting,
                      make_tester, run_config, seed_best_scores, train)
 from .recipes import recipe, settings_digest
@@ -166,13 +167,10 @@ def grid(algos, scenarios, process_index: int = 0, process_count: int = 1) -> li
     return cells[process_index::process_count]
 
 
-CELL_STATUSES = {
-    "done": "in the results file with these settings: skipped",
-    "resume": "interrupted: resumes from its latest checkpoint",
-    "restart": "its run folder holds other settings: set aside, trains from the start",
-    "new": "trains from the start",
-}
-"""What :func:`run_benchmark` does with a cell, by :attr:`CellPlan.status`."""
+CELL_STATUSES = ("done", "resume", "restart", "new")
+"""What :func:`run_benchmark` does with a cell (:attr:`CellPlan.status`): skip it (the results file holds it
+with these settings), resume it from its latest checkpoint, set its run folder aside (other settings) and
+train from the start, or train it from the start."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -201,13 +199,6 @@ def check_counts(**counts) -> None:
     for name, value in counts.items():
         if not isinstance(value, int) or isinstance(value, bool) or value < 1:
             raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-
-
-def latest_checkpoint(run: Path) -> int | None:
-    """The update of the newest checkpoint folder in ``run/checkpoints`` (None where there is none)."""
-    folder = Path(run) / "checkpoints"
-    steps = [int(p.name) for p in folder.iterdir() if p.name.isdigit()] if folder.is_dir() else []
-    return max(steps, default=None)
 
 
 def plan_cells(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS, seeds: int = 5,
@@ -241,7 +232,7 @@ def plan_cells(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS, se
         elif changed_settings(run, run_config(scenario, algo, seeds, seed, env, cfg, test_episodes), env):
             status = "restart"
         else:
-            checkpoint = latest_checkpoint(run)
+            checkpoint = latest_step(run / "checkpoints")
             status = "new" if checkpoint is None else "resume"
         plans.append(CellPlan(scenario, algo, env_settings, hp, steps, digest,
                               ALGORITHMS[algo][1](env, cfg).num_updates, status, checkpoint,

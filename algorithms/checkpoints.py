@@ -65,6 +65,20 @@ def step_folder(manager, step: int) -> Path:
     return Path(manager.directory) / str(step)
 
 
+def latest_step(directory: Path) -> int | None:
+    """The newest step orbax holds in the checkpoint folder ``directory`` (None where there is none);
+    reads only."""
+    if not Path(directory).is_dir():
+        return None
+    import orbax.checkpoint as ocp
+
+    manager = ocp.CheckpointManager(Path(directory).absolute(), options=ocp.CheckpointManagerOptions(create=False))
+    try:
+        return manager.latest_step()
+    finally:
+        manager.close()
+
+
 def restore_latest(manager, template=None, warn: Callable[[str], None] = print):
     """``(step, tree)`` of the newest intact step of ``manager`` (``(None, None)`` when it has none).
 

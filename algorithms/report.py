@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import functools
 import hashlib
 import json
 import os
@@ -82,9 +83,14 @@ def bootstrap_cache(path: Path):
         _CACHE.reset(token)
 
 
+@functools.cache
+def _statistics_versions() -> tuple[str, str]:
+    """The versions of the libraries that compute the bootstraps (part of a cached result's key)."""
+    return metadata.version("rliable"), metadata.version("arch")
+
+
 def _cache_key(statistic: str, score_dict: dict, reps: int, seed: int) -> str:
-    digest = hashlib.sha256(json.dumps([statistic, reps, seed, metadata.version("rliable"),
-                                        metadata.version("arch")]).encode())
+    digest = hashlib.sha256(json.dumps([statistic, reps, seed, *_statistics_versions()]).encode())
     for name in sorted(score_dict):
         arrays = score_dict[name] if isinstance(score_dict[name], list) else [score_dict[name]]
         for array in arrays:
