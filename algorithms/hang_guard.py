@@ -1,8 +1,8 @@
 """Detect a training call that stopped making progress, and say so (or restart).
 
-jaxlib 0.10.2's CPU runtime hung forever when vmapped network inits took batched QR decompositions
-(fixed in :func:`marbler_jax_rl.networks.orthogonal`; see ``BENCHMARKS.md``). Should another such hang
-appear, a run should not idle for hours: a running XLA program keeps the CPU busy, so a call during
+jaxlib 0.10.2's CPU runtime can hang forever when vmapped network inits take batched QR decompositions
+(:func:`marbler_jax_rl.networks.orthogonal` avoids them). Should another such hang appear, a run should not
+idle for hours: a running XLA program keeps the CPU busy, so a call during
 which the process has used almost no CPU time for ``idle_seconds`` is hung. :class:`HangGuard`
 watches one call from a daemon thread and runs ``on_hang(idle_seconds)`` once when that happens;
 the CLI then restarts itself with ``--resume`` (:func:`resume_argv`), which continues bit-exactly

@@ -39,7 +39,7 @@ def test_same_values_as_flax_orthogonal_batched_or_not():
 
 def test_vmapped_inits_never_hand_lapack_a_batch_of_matrices():
     """Seeds x agents vmapped inits (IPPO without sharing, QMIX_NS, VDN's GRU) only take 2-D QRs:
-    batched CPU QRs deadlock XLA's 2-thread pool (reproduced 3 of 3 times before the fix)."""
+    batched CPU QRs can deadlock XLA's 2-thread pool."""
     env = marbler_jax.make("predator_capture_prey")
     keys = jax.random.split(jax.random.PRNGKey(0), 3)
     for algo, hp in [("ippo", dict(shared=False)), ("qmix_ns", {}), ("vdn", {})]:
