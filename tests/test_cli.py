@@ -56,7 +56,7 @@ def test_benchmark_dry_run_lists_the_cells_and_trains_nothing(tmp_path, capsys):
     assert main(args + ["--shard", "1/2"]) == 0            # the recipes' budgets, this process's share
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith(f"{out / 'results-p1.json'}: 2 cell(s)") and "mappo" in lines[1]
-    assert main(args + ["--hp", "hidden=64", "--hp", "td_lambda=0.5"]) == 0          # VDN has both, MAPPO hidden
+    assert main(args + ["--hp", "hidden=32", "--hp", "td_lambda=0.5"]) == 0          # VDN has both, MAPPO hidden
     assert "4 new" in capsys.readouterr().out
     assert main(args + ["--hp", "no_such=1"]) == 2
     assert "--hp no_such: none of the algorithms ['mappo', 'vdn'] has this setting" in capsys.readouterr().err
