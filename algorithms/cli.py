@@ -397,7 +397,10 @@ def _quickstart(args) -> int:
         import shutil
 
         shutil.rmtree(out)                          # an unfinished earlier attempt of ours
-    result = train("simple_navigation", "ippo", 300_000, 2, out, hp={"lr": 1e-3})
+    from .recipes import settings
+
+    env_overrides, hp, steps = settings("recipe", "simple_navigation", "ippo")    # what `train` would run
+    result = train("simple_navigation", "ippo", steps, 2, out, env_overrides=env_overrides, hp=hp)
     gif = out / "episode.gif"
     _episode_gif(out, gif)
     from .export import export_policy

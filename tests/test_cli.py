@@ -263,16 +263,22 @@ def test_quickstart_replaces_only_its_own_earlier_run(monkeypatch, tmp_path, cap
     import marbler_jax_rl.cli as cli_module
     import marbler_jax_rl.driver as driver
 
-    real = driver.train
+    from marbler_jax_rl.recipes import settings
 
-    def tiny(scenario, algo, total_steps, seeds, out, hp):     # the quickstart's job at a test's size
-        return real(scenario, algo, 4 * 8 * 8, 1, out, hp=dict(hp, num_envs=8, num_steps=8, hidden=16),
-                    eval_episodes=8, test_episodes=4, progress=False, log=lambda *a, **k: None)
+    real, asked = driver.train, []
+
+    def tiny(scenario, algo, total_steps, seeds, out, env_overrides, hp):     # the quickstart's job at a test's size
+        asked.append((scenario, algo, env_overrides, hp, total_steps))
+        return real(scenario, algo, 4 * 8 * 8, 1, out, env_overrides=env_overrides,
+                    hp=dict(hp, num_envs=8, num_steps=8, hidden=16), eval_episodes=8, test_episodes=4,
+                    progress=False, log=lambda *a, **k: None)
 
     monkeypatch.setattr(driver, "train", tiny)
     monkeypatch.setattr(cli_module, "_episode_gif", lambda run, gif: gif.write_bytes(b"GIF89a"))
     out = tmp_path / "qs"
     assert cli_module.main(["quickstart", "--out", str(out)]) in (0, 1)
+    # the IPPO recipe, as `marbler-jax train --scenario simple_navigation --algo ippo` trains it
+    assert asked == [("simple_navigation", "ippo", *settings("recipe", "simple_navigation", "ippo"))]
     first = (out / "config.json").stat().st_mtime_ns
     assert cli_module.main(["quickstart", "--out", str(out)]) in (0, 1)       # its own run: replaced whole
     assert (out / "config.json").stat().st_mtime_ns != first and (out / "robotarium" / "main.py").exists()
