@@ -145,13 +145,15 @@ def build_once(tmp_path_factory, name: str, build) -> Path:
 
 @pytest.fixture(scope="session")
 def ippo_simple_nav_run(tmp_path_factory):
-    """One IPPO run on Simple Navigation (150k steps, default env: safe CBF, control every tick), trained once
-    per session (:func:`build_once`) through the training driver; used by the learning test and the
-    Robotarium bundle test."""
+    """One IPPO run on Simple Navigation (the recipe's settings for 150k steps; default env: safe CBF, control
+    every tick), trained once per session (:func:`build_once`) through the training driver; used by the
+    learning test and the Robotarium bundle test."""
+    from marbler_jax_rl import recipes
     from marbler_jax_rl.driver import train
 
     def build(folder):
-        train("simple_navigation", "ippo", 150_000, 1, folder / "run", hp={"num_envs": 64, "num_steps": 64, "lr": 1e-3},
+        hp = recipes.settings("recipe", "simple_navigation", "ippo")[1]
+        train("simple_navigation", "ippo", 150_000, 1, folder / "run", hp=hp,
               eval_episodes=256, test_episodes=16, progress=False, log=lambda *a, **k: None)
 
     return build_once(tmp_path_factory, "ippo-sn", build) / "run"
