@@ -303,7 +303,7 @@ def test_env_and_hp_overrides_are_part_of_a_cells_settings():
     assert wider[1] == dict(plain[1], hidden=32) and recipes.settings_digest(*wider) != recipes.settings_digest(*plain)
     vdn = benchmark.cell_settings(recipes.recipe("vdn"), "warehouse", hp_overrides={"hidden": 64, "td_lambda": 0.5})
     assert vdn[1]["hidden"] == 64 and vdn[1]["td_lambda"] == 0.5
-    assert chosen.config.hidden == 64 and "td_lambda" not in plain[1]     # the recipe itself is untouched
+    assert chosen.config.hidden == 128 and "td_lambda" not in plain[1]     # the recipe itself is untouched
     with pytest.raises(ValueError, match=r"--hp td_lambda: none of the algorithms \['ippo', 'mappo'\] has this setting"):
         benchmark.check_hp_overrides({"td_lambda": 0.5}, ["mappo", "ippo"])
     for name, option in (("learner_devices", "--devices"), ("total_timesteps", "--total-steps")):
