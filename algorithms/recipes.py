@@ -101,8 +101,8 @@ _VALUE = dict(hidden=32, cell="mingru", layer_norm=True, num_envs=256, buffer_si
               train_steps=32, target_update_interval=32, td_lambda=0.8, double_q=False, lr=1.5e-3,
               lr_decay=True, gamma=0.95, eps_finish=0.01, eps_decay_steps=1_000_000, learning_starts=0,
               last_action=True)
-# 128-unit PPO networks: with 64 units all five MAPPO seeds on Warehouse stay at a plateau of ~22 reward,
-# where three of five 128-unit seeds climb to ~34 in the same 3M steps (BENCHMARKS.md, "Network width").
+# 128-unit PPO networks: with 64 units all five MAPPO seeds on Warehouse stay at a plateau of ~22 reward for
+# 20M steps, where all five 128-unit seeds pass 30 within 6M (BENCHMARKS.md, "Network width").
 _PPO = dict(lr=1e-3, num_envs=64, num_steps=64, hidden=128, update_epochs=4, num_minibatches=4, ent_coef=0.01)
 
 # Env steps per seed: 10M for the value-based learners and 20M for PPO (on-policy, so less sample-efficient)
