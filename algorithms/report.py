@@ -224,8 +224,8 @@ def metric_table(results: dict, metric: str, reps: int) -> str | None:
 
 def shortfall_table(results: dict) -> str | None:
     """The evidence for every cell whose best seed misses the paper on some metric: what it misses, each
-    seed's score, each seed's best greedy test during training and when it came, and how many seeds were
-    still improving (their best test in the last quarter of training); None where every cell reaches it."""
+    seed's score, each seed's best greedy test during training and when it came, and each seed's
+    :func:`late_gain`; None where every cell reaches it."""
     tasks = results.get(ENV_NAME, {})
     rows = []
     for scenario in _ordered(tasks, SCENARIO_ORDER):
@@ -242,19 +242,19 @@ def shortfall_table(results: dict) -> str | None:
                 continue
             steps, tests = curve_points(runs)
             peaks = tests.argmax(axis=1)
-            late = int(np.sum(steps[peaks] > 0.75 * steps[-1]))
+            gains = ", ".join("—" if np.isnan(g) else f"{g:+.2f}" for g in late_gain(steps, tests))
             peak_text = ", ".join(f"{_fmt(float(tests[k, i]))} ({steps[i] / 1e6:.1f}M)" for k, i in enumerate(peaks))
             scores = ", ".join(_fmt(float(x)) for x in run_scores(runs, "reward"))
             mark = OFF_RECIPE_MARK if off_recipe(scenario, algo, runs) else ""
-            rows.append(f"| {scenario} | {algo}{mark} | {'; '.join(missed)} | {scores} | {peak_text} | {late} of {len(runs)} |")
+            rows.append(f"| {scenario} | {algo}{mark} | {'; '.join(missed)} | {scores} | {peak_text} | {gains} |")
     if not rows:
         return None
     head = ["### Cells short of the paper", "",
             "What each cell's best seed misses, each seed's score (reward), each seed's best greedy test during "
-            "training (at env steps), and the seeds still improving: those whose best test came in the last "
-            "quarter of training.", "",
-            "| scenario | algorithm | short on | seeds' scores | best test during training, per seed | "
-            "seeds still improving |", "|---|---|---|---|---|---|"]
+            "training (at env steps), and each seed's gain in the last quarter: its mean greedy test return over "
+            "the last quarter of training minus that over the quarter before (near 0: the seed has levelled off).",
+            "", "| scenario | algorithm | short on | seeds' scores | best test during training, per seed | "
+            "gain in the last quarter, per seed |", "|---|---|---|---|---|---|"]
     return "\n".join(head + rows) + "\n"
 
 
@@ -273,6 +273,15 @@ def improvement_table(runs_by_algo: dict, reps: int) -> str:
             cells.append(f"{p:.2f} [{low:.2f}, {high:.2f}]")
         lines.append(f"| {x} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def late_gain(steps: np.ndarray, tests: np.ndarray) -> np.ndarray:
+    """``[runs]``: each run's mean test reward over the last quarter of training (``steps`` in
+    ``(0.75, 1] x steps[-1]``) minus its mean over the quarter before; NaN where a quarter has no test."""
+    last, before = steps > 0.75 * steps[-1], (steps > 0.5 * steps[-1]) & (steps <= 0.75 * steps[-1])
+    if not last.any() or not before.any():
+        return np.full(len(tests), np.nan)
+    return tests[:, last].mean(axis=1) - tests[:, before].mean(axis=1)
 
 
 def curve_points(runs: dict) -> tuple[np.ndarray, np.ndarray]:

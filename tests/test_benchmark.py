@@ -366,10 +366,14 @@ def test_shortfalls_show_what_a_cell_misses_and_how_its_seeds_trained():
     runs = _runs([[32.0, 33.0], [30.0, 31.0]], best_test=[33.0, 31.0], steps=(100, 200, 300, 400))
     runs["run_0"][ABSOLUTE]["collisions"] = [0.0, 4.0]             # % per episode: 2 % of the best seed's
     runs["run_1"]["step_1"]["reward"] = [40.0, 40.0]              # its best test came at 200 of 400 steps
+    runs["run_1"]["step_2"]["reward"] = [31.5, 31.5]              # and its last quarter tests below the one before
     table = report.shortfall_table({ENV_NAME: {"predator_capture_prey": {"vdn": runs}}})
     assert table.startswith("### Cells short of the paper")
     row = next(line for line in table.splitlines() if line.startswith("| predator_capture_prey | vdn† |"))  # no recipe
     assert "| reward 32.50 < 33.25; collisions 2.00 > 1 |" in row
-    assert "| 32.50, 30.50 | 32.50 (0.0M), 40.00 (0.0M) | 1 of 2 |" in row
+    # last-quarter gain: run_0's tests rise 24.375 -> 32.5 (300 -> 400 steps), run_1's fall 31.5 -> 30.5
+    assert "| 32.50, 30.50 | 32.50 (0.0M), 40.00 (0.0M) | +8.12, -1.00 |" in row
+    one_test = _runs([[30.0, 31.0]], steps=(100,))               # no quarter before the last: no gain to show
+    assert "| 30.50 | 30.50 (0.0M) | — |" in report.shortfall_table({ENV_NAME: {"predator_capture_prey": {"vdn": one_test}}})
     reaching = _runs([[34.0, 35.0]], steps=(100, 200))
     assert report.shortfall_table({ENV_NAME: {"predator_capture_prey": {"vdn": reaching}}}) is None
