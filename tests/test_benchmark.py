@@ -374,6 +374,7 @@ def test_shortfalls_show_what_a_cell_misses_and_how_its_seeds_trained():
     # last-quarter gain: run_0's tests rise 24.375 -> 32.5 (300 -> 400 steps), run_1's fall 31.5 -> 30.5
     assert "| 32.50, 30.50 | 32.50 (0.0M), 40.00 (0.0M) | +8.12, -1.00 |" in row
     one_test = _runs([[30.0, 31.0]], steps=(100,))               # no quarter before the last: no gain to show
-    assert "| 30.50 | 30.50 (0.0M) | — |" in report.shortfall_table({ENV_NAME: {"predator_capture_prey": {"vdn": one_test}}})
+    table = report.shortfall_table({ENV_NAME: {"predator_capture_prey": {"vdn": one_test}}})
+    assert "| 30.50 | 30.50 (0.0M) | — |" in table
     reaching = _runs([[34.0, 35.0]], steps=(100, 200))
     assert report.shortfall_table({ENV_NAME: {"predator_capture_prey": {"vdn": reaching}}}) is None
