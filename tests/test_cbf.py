@@ -296,9 +296,11 @@ def _closed_loop(kind, ticks=3000, n=20, seed=0):
     return np.asarray(final), np.asarray(hits), np.asarray(outside), np.asarray(closest), goals
 
 
-# The v2 kinds' closed loops are slow (3x the sweeps); uni_boundary_v2 runs every v2 code path (polygon
-# rows, boundary rows, the unicycle map, the stop rule), so the other three are in the slow set.
-SLOW_CLOSED_LOOP = {"si_v2", "uni_v2", "si_boundary_v2"}
+# The default run keeps one closed loop per family: si2 (MARBLER's certificate), uni_boundary (rps's unicycle
+# barrier with walls), uni_dd_boundary (the robust barrier) and uni_boundary_v2 (every v2 code path: polygon
+# rows, boundary rows, the unicycle map, the stop rule; the v2 loops take 3x the sweeps). The other kinds build
+# the same rows with the same solver (with or without walls, one gain or two) and run under -m slow.
+SLOW_CLOSED_LOOP = {"si", "si_boundary", "uni", "uni2", "uni_dd", "si_v2", "uni_v2", "si_boundary_v2"}
 
 
 @pytest.mark.parametrize("kind", [pytest.param(k, marks=pytest.mark.slow) if k in SLOW_CLOSED_LOOP else k

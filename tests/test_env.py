@@ -41,10 +41,10 @@ def test_registry_and_sizes():
     assert marbler_jax.make("PredatorCapturePrey").name == "predator_capture_prey"  # MARBLER alias
 
 
-def test_zero_collisions_and_no_nan_over_1000s_of_random_episodes(env):
-    """Default settings (safe CBF, control every tick): random policies never collide (2048 episodes of
-    MARBLER's scenarios, 1024 of the 101-step JaxRobotarium ones)."""
-    num_envs = 1024 if env.name in ("discovery", "foraging", "rware") else 2048
+def test_zero_collisions_and_no_nan_over_a_thousand_random_episodes(env):
+    """Default settings (safe CBF, control every tick): random policies never collide (1024 envs, each
+    running its episodes for one episode length)."""
+    num_envs = 1024
     rollout = make_rollout(env, num_envs, env.max_steps)
     state, (rewards, done, info) = rollout(jax.random.PRNGKey(7))
     episodes = int(done.sum()) + int((~done[-1]).sum())  # finished + the ones still running
