@@ -300,10 +300,10 @@ def _closed_loop(kind, ticks=3000, n=20, seed=0):
 # barrier with walls), uni_dd_boundary (the robust barrier) and uni_boundary_v2 (every v2 code path: polygon
 # rows, boundary rows, the unicycle map, the stop rule; the v2 loops take 3x the sweeps). The other kinds build
 # the same rows with the same solver (with or without walls, one gain or two) and run under -m slow.
-SLOW_CLOSED_LOOP = {"si", "si_boundary", "uni", "uni2", "uni_dd", "si_v2", "uni_v2", "si_boundary_v2"}
+DEFAULT_CLOSED_LOOP = {"si2", "uni_boundary", "uni_dd_boundary", "uni_boundary_v2"}
 
 
-@pytest.mark.parametrize("kind", [pytest.param(k, marks=pytest.mark.slow) if k in SLOW_CLOSED_LOOP else k
+@pytest.mark.parametrize("kind", [k if k in DEFAULT_CLOSED_LOOP else pytest.param(k, marks=pytest.mark.slow)
                                   for k in cbf.KINDS])
 def test_closed_loop_twenty_robots_never_collide(kind):
     final, hits, outside, closest, goals = _closed_loop(kind)
