@@ -82,11 +82,11 @@ SEEDS_OVER_DEVICES = PRELUDE + textwrap.dedent("""
 
     # Three IPPO seeds on two devices train as vmapped on one device up to float rounding, greedy tests
     # included, either way of splitting them: seed_batching="devices" (2 + 1 seeds, the last padded) or
-    # learner_devices=2 (each seed's envs and minibatches split). Neither compiles after its "compiled in" line.
-    # The splits named in argv[2] resume bit for bit: interrupted + resumed == uninterrupted, the resumed run
-    # compiling nothing more either (the state enters every chunk laid out over the devices as the chunk
+    # learner_devices=2 (each seed's envs and minibatches split), whichever argv[2] names. Neither compiles after
+    # its "compiled in" line, and each resumes bit for bit: interrupted + resumed == uninterrupted, the resumed
+    # run compiling nothing more either (the state enters every chunk laid out over the devices as the chunk
     # returns it)
-    root, resumed = sys.argv[1], sys.argv[2].split(",")
+    root, splits = sys.argv[1], sys.argv[2].split(",")
     hp = dict(num_envs=8, num_steps=8, num_minibatches=2, update_epochs=1, hidden=16)
     common = dict(scenario="simple_navigation", algo="ippo", total_steps=6 * 8 * 8, seeds=3, eval_episodes=0,
                   checkpoint_every=2, progress=False, test_episodes=4)
@@ -100,18 +100,18 @@ SEEDS_OVER_DEVICES = PRELUDE + textwrap.dedent("""
     train(out=root + "/vmap", hp=hp, log=quiet, **common)
     vmap = np.load(f"{root}/vmap/params.npz")
     vmap_tests = [json.loads(line) for line in open(f"{root}/vmap/tests.jsonl")]
-    for name, split in (("seeds", dict(seed_batching="devices", hp=hp)),
-                        ("envs", dict(hp=dict(hp, learner_devices=2)))):
+    every = {"seeds": dict(seed_batching="devices", hp=hp), "envs": dict(hp=dict(hp, learner_devices=2))}
+    for name in splits:
+        split = every[name]
         assert chunks(out=f"{root}/{name}", **split, **common) == 3
         full = np.load(f"{root}/{name}/params.npz")
-        if name in resumed:
-            with pytest.raises(KeyboardInterrupt):
-                train(out=f"{root}/{name}-cut", on_chunk=interrupt_at(2), log=quiet, **split, **common)
-            assert chunks(out=f"{root}/{name}-cut", resume=True, **split, **common) == 2
-            cut = np.load(f"{root}/{name}-cut/params.npz")
-            assert sorted(cut) == sorted(full)
-            for key in full:
-                np.testing.assert_array_equal(full[key], cut[key], err_msg=f"{name}: {key}")
+        with pytest.raises(KeyboardInterrupt):
+            train(out=f"{root}/{name}-cut", on_chunk=interrupt_at(2), log=quiet, **split, **common)
+        assert chunks(out=f"{root}/{name}-cut", resume=True, **split, **common) == 2
+        cut = np.load(f"{root}/{name}-cut/params.npz")
+        assert sorted(cut) == sorted(full)
+        for key in full:
+            np.testing.assert_array_equal(full[key], cut[key], err_msg=f"{name}: {key}")
         assert sorted(full) == sorted(vmap)
         for key in full:
             assert full[key].shape[0] == 3 and not np.allclose(full[key][1], full[key][2]), (name, key)
@@ -123,13 +123,13 @@ SEEDS_OVER_DEVICES = PRELUDE + textwrap.dedent("""
 """)
 
 
-def test_seeds_or_envs_over_devices_match_one_device_and_resume_bit_exactly(tmp_path):
+def test_envs_over_devices_match_one_device_and_resume_bit_exactly(tmp_path):
     run_with_two_devices(SEEDS_OVER_DEVICES, str(tmp_path), "envs")        # the split the benchmark's PPO cells use
 
 
-@pytest.mark.slow
-def test_seeds_over_devices_resume_bit_exactly(tmp_path):
-    run_with_two_devices(SEEDS_OVER_DEVICES, str(tmp_path), "seeds,envs")
+@pytest.mark.slow     # seed_batching="devices", an option no recipe uses
+def test_seeds_over_devices_match_one_device_and_resume_bit_exactly(tmp_path):
+    run_with_two_devices(SEEDS_OVER_DEVICES, str(tmp_path), "seeds")
 
 
 def test_seeds_over_devices_with_a_split_learner_is_refused(tmp_path):

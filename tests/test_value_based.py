@@ -336,12 +336,13 @@ def _learns(module, cfg, min_gain=30.0):
 FAST = dict(num_envs=16, buffer_size=500, learning_starts=2000, eps_decay_steps=20_000, hidden=64, lr=1e-3)
 
 
-@pytest.mark.slow     # a learning check; the recipe's learner keeps one in the default suite
+@pytest.mark.slow     # a learning check
 def test_vdn_learns_simple_navigation():
     # TD(lambda) targets: greedy -23 after 60k steps (one-step targets: -31; random: -85)
     _learns(vdn, vdn.VDNConfig(total_timesteps=60_000, train_steps=4, td_lambda=0.6, **FAST))
 
 
+@pytest.mark.slow     # a learning check (half a minute); IPPO's stays in the default suite
 def test_vdn_learns_simple_navigation_from_fresh_episodes_only():
     """The recipe's learner, scaled down: no replay beyond the update's own episodes,
     each sample used 4 times, TD(lambda) targets from the collecting network, minimal GRU. At lr 3e-3 each of
@@ -355,14 +356,14 @@ def test_vdn_learns_simple_navigation_from_fresh_episodes_only():
     _learns(vdn, cfg)
 
 
-@pytest.mark.slow     # a learning check; the recipe's learner keeps one in the default suite
+@pytest.mark.slow     # a learning check
 def test_qmix_learns_simple_navigation():
     cfg = dict(FAST, lr=5e-4, eps_decay_steps=50_000)
     _learns(qmix, qmix.QMIXConfig(total_timesteps=150_000, train_steps=8, target_update_interval=50,
                                   recurrent=False, **cfg))
 
 
-@pytest.mark.slow     # a learning check; the recipe's learner keeps one in the default suite
+@pytest.mark.slow     # a learning check
 def test_qmix_ns_learns_simple_navigation():
     # per-agent minimal-GRU agents (the whole-sequence path vmapped over agents)
     cfg = dict(FAST, lr=5e-4, eps_decay_steps=50_000)
