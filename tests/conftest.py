@@ -163,9 +163,10 @@ def ippo_simple_nav_run(tmp_path_factory):
 # Modules whose tests train or compile whole programs (the suite's longest tests), in the
 # order to start them. pytest-xdist hands the tests out in collection order, so running these first
 # and the many short tests after them keeps both workers busy to the end instead of leaving one long
-# test alone on one worker.
-LONG_FIRST = ("test_data_parallel", "test_value_based", "test_training_driver", "test_cli", "test_examples",
-              "test_ippo", "test_bundle")
+# test alone on one worker. test_ippo's first test starts the session's IPPO run at once, so that it is
+# trained before the other worker reaches test_bundle, whose tests wait for it.
+LONG_FIRST = ("test_ippo", "test_data_parallel", "test_value_based", "test_training_driver", "test_cli",
+              "test_examples", "test_bundle")
 
 
 def pytest_collection_modifyitems(config, items):
