@@ -56,29 +56,38 @@ MARBLER_TRAINING_ENV = MappingProxyType({"control_period": 15})
 class Recipe:
     """How one algorithm is trained: ``config`` (the algorithm's typed config; its ``total_timesteps``
     is replaced by the scenario's budget), ``env`` (env config overrides), ``steps`` (env steps per seed
-    for each scenario, ``default_steps`` elsewhere) and ``why`` (one sentence for each scenario whose
-    entry is more than a step budget)."""
+    for each scenario, ``default_steps`` elsewhere), ``scenario_hp`` (config fields one scenario trains
+    with instead) and ``why`` (one sentence for each scenario in ``scenario_hp``; the report marks its cell)."""
 
     algo: str
     config: Any
     env: Mapping[str, Any] = dataclasses.field(default_factory=lambda: TRAINING_ENV)
     steps: Mapping[str, int] = dataclasses.field(default_factory=lambda: MappingProxyType({}))
     default_steps: int = 10_000_000
+    scenario_hp: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=lambda: MappingProxyType({}))
     why: Mapping[str, str] = dataclasses.field(default_factory=lambda: MappingProxyType({}))
+
+    def __post_init__(self):
+        if set(self.scenario_hp) != set(self.why):
+            raise ValueError(f"{self.algo} recipe: scenarios with their own settings {sorted(self.scenario_hp)} "
+                             f"and scenarios with a reason {sorted(self.why)} must be the same")
+        for overrides in self.scenario_hp.values():
+            dataclasses.replace(self.config, **overrides)     # the config refuses unknown or invalid fields
 
     def total_steps(self, scenario: str) -> int:
         """Env steps per seed on the canonical ``scenario``."""
         return int(self.steps.get(scenario, self.default_steps))
 
-    def hyperparameters(self) -> dict:
-        """The config's fields as ``marbler-jax train --hp`` would give them (no ``total_timesteps``)."""
-        hp = dataclasses.asdict(self.config)
+    def hyperparameters(self, scenario: str) -> dict:
+        """The config's fields on the canonical ``scenario`` as ``marbler-jax train --hp`` would give them
+        (no ``total_timesteps``)."""
+        hp = dataclasses.asdict(dataclasses.replace(self.config, **self.scenario_hp.get(scenario, {})))
         hp.pop("total_timesteps")
         return hp
 
     def settings(self, scenario: str) -> tuple[dict, dict, int]:
         """``(env_overrides, hyperparameters, total_steps)`` for the canonical ``scenario``."""
-        return dict(self.env), self.hyperparameters(), self.total_steps(scenario)
+        return dict(self.env), self.hyperparameters(scenario), self.total_steps(scenario)
 
     def digest(self, scenario: str) -> str:
         """:func:`settings_digest` of this recipe on the canonical ``scenario``."""

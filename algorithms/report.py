@@ -191,6 +191,19 @@ def off_recipe(scenario: str, algo: str, runs: dict) -> bool:
 
 
 OFF_RECIPE_MARK = "†"
+SCENARIO_SETTING_MARK = "‡"
+
+
+def _settings_text(settings: dict) -> str:
+    return ", ".join(f"`{k}={v}`" for k, v in settings.items())
+
+
+def cell_mark(scenario: str, algo: str, runs: dict) -> str:
+    """:data:`OFF_RECIPE_MARK` for a cell made off the recipe, :data:`SCENARIO_SETTING_MARK` for one made with
+    the recipe's own settings for that scenario (``Recipe.scenario_hp``), else nothing."""
+    if off_recipe(scenario, algo, runs):
+        return OFF_RECIPE_MARK
+    return SCENARIO_SETTING_MARK if scenario in RECIPES[algo].scenario_hp else ""
 
 
 def metric_table(results: dict, metric: str, reps: int) -> str | None:
@@ -209,7 +222,7 @@ def metric_table(results: dict, metric: str, reps: int) -> str | None:
             paper = PAPER.get(scenario, {}).get(algo, {}).get(metric)
             ok = reached(metric, best_mean, paper[0] if paper else None)
             steps = runs["run_0"][ABSOLUTE]["env_steps"][0]
-            mark = OFF_RECIPE_MARK if off_recipe(scenario, algo, runs) else ""
+            mark = cell_mark(scenario, algo, runs)
             rows.append(f"| {scenario} | {algo}{mark} | {len(runs)} | {steps / 1e6:.1f}M | {_fmt(iqm)} [{_fmt(low)}, {_fmt(high)}] "
                         f"| {_fmt(best_mean)} ± {_fmt(float(np.std(best)))} | "
                         f"{f'{paper[0]:g} ± {paper[1]:g}' if paper else '—'} | "
@@ -245,7 +258,7 @@ def shortfall_table(results: dict) -> str | None:
             gains = ", ".join("—" if np.isnan(g) else f"{g:+.2f}" for g in late_gain(steps, tests))
             peak_text = ", ".join(f"{_fmt(float(tests[k, i]))} ({steps[i] / 1e6:.1f}M)" for k, i in enumerate(peaks))
             scores = ", ".join(_fmt(float(x)) for x in run_scores(runs, "reward"))
-            mark = OFF_RECIPE_MARK if off_recipe(scenario, algo, runs) else ""
+            mark = cell_mark(scenario, algo, runs)
             rows.append(f"| {scenario} | {algo}{mark} | {'; '.join(missed)} | {scores} | {peak_text} | {gains} |")
     if not rows:
         return None
@@ -353,7 +366,7 @@ def time_table(results: dict) -> str:
             train_total += train
             wall_total += wall or 0.0
             walls += wall is not None
-            mark = OFF_RECIPE_MARK if off_recipe(scenario, algo, runs) else ""
+            mark = cell_mark(scenario, algo, runs)
             rows.append(f"| {scenario} | {algo}{mark} | {first['env_steps'][0] / 1e6:.1f}M | "
                         f"{first.get('device', [UNRECORDED_DEVICE])[0]} | {train / 60:.1f} min | "
                         + (f"{wall / 60:.1f} min |" if wall is not None else "— |"))
@@ -375,7 +388,7 @@ SUMMARY_END = "<!-- end of reward summary -->"
 
 def summary_table(results: dict, reps: int = 2000) -> str:
     """The reward of MARBLER's Table II in one table (scenarios x the paper's algorithms): per cell our best
-    seed (bold where it reaches the paper; :data:`OFF_RECIPE_MARK` where made off the recipe), the IQM over
+    seed (bold where it reaches the paper; marked as :func:`cell_mark` says), the IQM over
     seeds with its 95 % CI, and the paper's value; ``—`` for a cell not run yet. Negative numbers get a
     typographic minus."""
     def num(x: float) -> str:
@@ -396,7 +409,7 @@ def summary_table(results: dict, reps: int = 2000) -> str:
             best = float(np.mean(episode_values(runs[best_seed_run(runs)][ABSOLUTE], "reward")))
             iqm, low, high = iqm_ci(run_scores(runs, "reward"), reps)
             ours = f"**{num(best)}**" if reached("reward", best, paper) else num(best)
-            mark = OFF_RECIPE_MARK if off_recipe(scenario, algo, runs) else ""
+            mark = cell_mark(scenario, algo, runs)
             cells.append(f"{ours}{mark} ({num(iqm)} [{num(low)}, {num(high)}]) / {num(paper)}")
         lines.append(f"| {scenario.replace('_', ' ').title()} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
@@ -431,6 +444,10 @@ def report_markdown(results: dict, reps: int = 2000) -> str:
     if any(off_recipe(s, a, tasks[s][a]) for s, a in cells):
         parts += [f"{OFF_RECIPE_MARK} trained with other settings than the algorithm's current recipe (an earlier "
                   "recipe, another step budget or another env setting); rerun the cell to compare it with the recipe.", ""]
+    for s, a in cells:
+        if cell_mark(s, a, tasks[s][a]) == SCENARIO_SETTING_MARK:
+            parts += [f"{SCENARIO_SETTING_MARK} {a} on {s}: the recipe's own settings for this scenario "
+                      f"({_settings_text(RECIPES[a].scenario_hp[s])}): {RECIPES[a].why[s]}", ""]
     shortfalls = shortfall_table(results)
     if shortfalls:
         parts += [shortfalls, ""]
@@ -509,4 +526,4 @@ def write_report(folder: str | Path, out: str | Path | None = None, reps: int = 
 
 
 __all__ = ["write_report", "report_markdown", "iqm_ci", "probability_of_improvement", "run_scores",
-           "best_seed_run", "metric_table", "shortfall_table", "summary_table", "time_table", "replace_summary", "curve_points", "reached", "off_recipe", "training_time"]
+           "best_seed_run", "metric_table", "shortfall_table", "summary_table", "time_table", "replace_summary", "curve_points", "reached", "off_recipe", "cell_mark", "training_time"]

@@ -151,6 +151,29 @@ def test_report_renders_tables_curves_and_improvement(tmp_path):
     assert unmarked.read_text() == "no markers\n"
 
 
+def test_report_marks_a_cell_made_with_its_recipes_own_settings_for_the_scenario(monkeypatch):
+    import dataclasses
+
+    from marbler_jax_rl.recipes import RECIPES
+
+    own = dataclasses.replace(RECIPES["vdn"], scenario_hp={"predator_capture_prey": {"gamma": 0.99}},
+                              why={"predator_capture_prey": "the prey pay late."})
+    monkeypatch.setattr(report, "RECIPES", dict(RECIPES, vdn=own))
+    results = {ENV_NAME: {"predator_capture_prey": {
+        "vdn": _runs([[33.0, 34.0], [30.0, 31.0]], recipe=own.digest("predator_capture_prey")),
+        "qmix": _runs([[20.0, 21.0], [25.0, 26.0]], recipe=RECIPES["qmix"].digest("predator_capture_prey"))}}}
+    text = report.report_markdown(results, reps=20)
+    assert "| predator_capture_prey | vdn‡ | 2 |" in text and "| predator_capture_prey | qmix | 2 |" in text
+    assert ("‡ vdn on predator_capture_prey: the recipe's own settings for this scenario (`gamma=0.99`): "
+            "the prey pay late.") in text
+    assert "†" not in text
+    assert "| Predator Capture Prey | **33.50**‡ (" in report.summary_table(results, reps=20)
+    # the same cell made with the recipe's common settings is off the recipe now
+    results[ENV_NAME]["predator_capture_prey"]["vdn"] = _runs([[33.0, 34.0]], recipe=RECIPES["vdn"].digest(
+        "predator_capture_prey"))
+    assert "| predator_capture_prey | vdn† | 1 |" in report.report_markdown(results, reps=20)
+
+
 def test_a_second_report_bootstraps_only_what_changed(tmp_path, monkeypatch):
     from rliable import library
 

@@ -31,6 +31,21 @@ def test_every_algorithm_has_one_typed_recipe_used_on_every_scenario():
         assert settings("recipe", "warehouse", algo)[0] == {"control_period": 1}    # the robots' loop
 
 
+def test_a_scenarios_own_settings_need_a_reason_and_reach_only_that_scenario():
+    base = RECIPES["vdn"]
+    own = dataclasses.replace(base, scenario_hp={"warehouse": {"gamma": 0.99}}, why={"warehouse": "a reason."})
+    assert own.settings("warehouse")[1] == dict(base.settings("warehouse")[1], gamma=0.99)
+    assert own.settings("arctic_transport") == base.settings("arctic_transport")
+    assert own.digest("warehouse") != base.digest("warehouse")        # the benchmark retrains such a cell
+    assert build_config("vdn", own.settings("warehouse")[1]).gamma == 0.99
+    with pytest.raises(ValueError, match=r"scenarios with their own settings \['warehouse'\] and scenarios with a reason \[\]"):
+        dataclasses.replace(base, scenario_hp={"warehouse": {"gamma": 0.99}})
+    with pytest.raises(ValueError, match="must be the same"):
+        dataclasses.replace(base, why={"warehouse": "a reason without settings."})
+    with pytest.raises(TypeError, match="no_such_field"):
+        dataclasses.replace(base, scenario_hp={"warehouse": {"no_such_field": 1}}, why={"warehouse": "a reason."})
+
+
 def test_recipes_keep_the_papers_algorithm_definitions():
     """VDN, QMIX and MAPPO share one network with agent IDs; QMIX_NS has one per robot."""
     for algo in ("vdn", "qmix", "mappo", "ippo"):

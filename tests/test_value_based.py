@@ -347,7 +347,7 @@ def test_vdn_learns_simple_navigation_from_fresh_episodes_only():
     """The recipe's learner, scaled down: no replay beyond the update's own episodes,
     each sample used 4 times, TD(lambda) targets from the collecting network, minimal GRU. At lr 3e-3 each of
     seeds 0-5 learns within 200k steps (greedy about -25, random -85), so the check does not depend on the seed."""
-    hp = RECIPES["vdn"].hyperparameters()
+    hp = RECIPES["vdn"].hyperparameters("simple_navigation")
     assert hp["buffer_size"] == hp["num_envs"] and hp["train_steps"] == hp["target_update_interval"]
     hp.update(num_envs=32, buffer_size=32, batch_size=32, train_steps=4, target_update_interval=4,
               eps_decay_steps=40_000, lr=3e-3)
