@@ -466,8 +466,8 @@ def report_markdown(results: dict, reps: int = 2000) -> str:
 RESULTS_HEAD = """# Results
 
 MARBLER's Table II (simulation) reproduced with `marbler-jax benchmark`: every cell trained with its
-algorithm's recipe (`algorithms/recipes.py`; † marks a cell made with other settings), five seeds in
-one program, each seed tested greedily at 20 points of training and then its best checkpoint evaluated
+algorithm's recipe (`algorithms/recipes.py`; † marks a cell made with other settings, ‡ one made with
+its recipe's own settings for that scenario, with the reason below the tables), five seeds in one program, each seed tested greedily at 20 points of training and then its best checkpoint evaluated
 over fresh episodes. This file is generated:
 
 ```bash

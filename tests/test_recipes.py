@@ -25,14 +25,14 @@ def test_every_algorithm_has_one_typed_recipe_used_on_every_scenario():
         with pytest.raises(dataclasses.FrozenInstanceError):
             r.config.lr = 1.0
         hps = {s: settings("recipe", s, algo)[1] for s in SCENARIOS}
-        assert all(hp == hps["warehouse"] for hp in hps.values())  # per scenario: the step budget only
-        assert not r.why                                           # no scenario-specific entry
+        for s, hp in hps.items():       # per scenario: the step budget, or own settings with their reason
+            assert hp == dict(hps["warehouse"], **r.scenario_hp.get(s, {})) and (s in r.why) == (s in r.scenario_hp)
         assert build_config(algo, hps["warehouse"]) == dataclasses.replace(r.config)
         assert settings("recipe", "warehouse", algo)[0] == {"control_period": 1}    # the robots' loop
 
 
 def test_a_scenarios_own_settings_need_a_reason_and_reach_only_that_scenario():
-    base = RECIPES["vdn"]
+    base = dataclasses.replace(RECIPES["vdn"], scenario_hp={}, why={})
     own = dataclasses.replace(base, scenario_hp={"warehouse": {"gamma": 0.99}}, why={"warehouse": "a reason."})
     assert own.settings("warehouse")[1] == dict(base.settings("warehouse")[1], gamma=0.99)
     assert own.settings("arctic_transport") == base.settings("arctic_transport")
