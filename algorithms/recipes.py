@@ -19,8 +19,8 @@ episodes per update, no replay beyond them, each sample used eight times (32 gra
 sequences, the target network synced once per update), TD(lambda 0.8) targets from the network that
 collected the episodes, a minimal GRU of 32 units with LayerNorm, gamma 0.95, Adam at 1.5e-3 decaying
 to 0, epsilon 1 -> 0.01 over the first 1M steps (the remaining steps exploit) and each robot's previous
-action in its input; VDN on Material Transport discounts by 0.99 (``Recipe.why`` says why). The PPO recipe is CleanRL/MAPPO's clipped PPO over 64 parallel envs with 128-unit
-networks.
+action in its input; VDN on Material Transport discounts by 0.99 (``Recipe.why`` says why). The PPO
+recipe is CleanRL/MAPPO's clipped PPO over 64 parallel envs with 128-unit networks.
 
 ``paper`` holds the settings of MARBLER's EPyMARL model files instead (``../shared/spec/scenarios.md``
 E.2), in MARBLER's training loop: GRU 128 agents, gamma 0.99, 5000-episode buffer, one gradient step per
