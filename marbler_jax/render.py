@@ -10,6 +10,8 @@ actions) and ``render_grid_episode`` tiles their frames into one movie; ``save_m
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 AGENT_COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf")
@@ -200,7 +202,10 @@ def save_movie(frames, path, fps: float = 6.0) -> None:
         raise ValueError("writing .mp4 needs the imageio-ffmpeg package (pip install imageio-ffmpeg); "
                          "or write a .gif") from None
     even = [f[: f.shape[0] // 2 * 2, : f.shape[1] // 2 * 2] for f in frames]   # H.264 wants even sizes
-    imageio.mimsave(path, even, fps=fps, macro_block_size=1)
+    with warnings.catch_warnings():
+        # imageio-ffmpeg starts ffmpeg by fork + exec: the child runs no JAX code, so JAX's fork warning is moot
+        warnings.filterwarnings("ignore", message=r"os\.fork\(\) was called", category=RuntimeWarning)
+        imageio.mimsave(path, even, fps=fps, macro_block_size=1)
 
 
 def _draw_layer(ax, plt, layer: dict):

@@ -1,6 +1,8 @@
 """Rendering: vmapped episodes recorded and tiled into GIF frames; the ``render`` CLI for scenarios."""
 from __future__ import annotations
 
+import warnings
+
 import imageio.v2 as imageio
 import jax
 import numpy as np
@@ -58,11 +60,17 @@ def test_render_cli_writes_a_gif_of_a_scenario_grid(tmp_path, capsys):
     assert f"-> {gif}" in capsys.readouterr().out
 
 
-def test_render_cli_writes_an_mp4(tmp_path):
+def test_render_cli_writes_an_mp4_without_warnings(tmp_path):
     mp4 = tmp_path / "pcp.mp4"                                     # imageio-ffmpeg is in the test extra
-    assert main(["render", "predator_capture_prey", "--out", str(mp4), "--no-progress",
-                 "--set", "max_episode_steps=5", "--set", "penalize_violations=false"]) == 0
-    frames = imageio.mimread(mp4, format="FFMPEG")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert main(["render", "predator_capture_prey", "--out", str(mp4), "--no-progress",
+                     "--set", "max_episode_steps=5", "--set", "penalize_violations=false"]) == 0
+    # e.g. JAX's fork warning when ffmpeg's process starts
+    assert not [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r"os\.fork\(\) was called", category=RuntimeWarning)
+        frames = imageio.mimread(mp4, format="FFMPEG")
     assert len(frames) == 7 and frames[0].std() > 20
 
 
