@@ -114,10 +114,12 @@ _VALUE = dict(hidden=32, cell="mingru", layer_norm=True, num_envs=256, buffer_si
 # 20M steps, where all five 128-unit seeds pass 30 within 6M (BENCHMARKS.md, "Network width").
 _PPO = dict(lr=1e-3, num_envs=64, num_steps=64, hidden=128, update_epochs=4, num_minibatches=4, ent_coef=0.01)
 
-# Env steps per seed on every scenario but Simple Navigation, the quick check: 10M for QMIX and QMIX_NS, 20M
-# for PPO (on-policy, so less sample-efficient) and for VDN, whose sum of per-robot values still gains after
-# 10M (Predator Capture Prey: IQM 31.32 at 10M in results/pcp-vdn-10m, 32.27 at 20M in RESULTS.md).
-_VALUE_STEPS = _frozen(simple_navigation=2_000_000)
+# Env steps per seed on MARBLER's scenarios: 10M for QMIX and QMIX_NS, 20M for PPO (on-policy, so less
+# sample-efficient) and for VDN, whose sum of per-robot values still gains after 10M (Predator Capture Prey:
+# IQM 31.32 at 10M in results/pcp-vdn-10m, 32.27 at 20M in RESULTS.md). The value-based algorithms train
+# JaxRobotarium's scenarios for JaxRobotarium's own budgets (its Q-learning configs), so those rows compare
+# at equal samples; Simple Navigation is the quick check.
+_VALUE_STEPS = _frozen(simple_navigation=2_000_000, discovery=5_000_000, foraging=5_000_000, rware=20_000_000)
 _PPO_STEPS = _frozen(simple_navigation=300_000)
 _VALUE_DEFAULT_STEPS, _VDN_DEFAULT_STEPS, _PPO_DEFAULT_STEPS = 10_000_000, 20_000_000, 20_000_000
 

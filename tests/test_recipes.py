@@ -110,3 +110,16 @@ def test_settings_digest_names_what_trains_and_ignores_learner_devices():
     assert settings_digest(env, hp, steps + 1) != digest
     assert settings_digest({}, hp, steps) != digest
     assert RECIPES["qmix"].digest("warehouse") != digest
+
+
+def test_step_budgets_name_registered_scenarios_and_match_jaxrobotarium_for_value_based():
+    """A misspelt scenario in ``steps`` would silently fall back to the default budget; the value-based
+    recipes train JaxRobotarium's scenarios for JaxRobotarium's own budgets (its Q-learning configs)."""
+    from marbler_jax.registry import registered
+
+    for algo, chosen in RECIPES.items():
+        assert set(chosen.steps) <= set(registered()), algo
+        assert set(chosen.scenario_hp) <= set(registered()), algo
+    for algo in ("vdn", "qmix", "qmix_ns"):
+        budgets = {s: RECIPES[algo].total_steps(s) for s in ("discovery", "foraging", "rware")}
+        assert budgets == {"discovery": 5_000_000, "foraging": 5_000_000, "rware": 20_000_000}, algo
