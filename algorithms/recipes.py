@@ -116,11 +116,10 @@ _PPO = dict(lr=1e-3, num_envs=64, num_steps=64, hidden=128, update_epochs=4, num
 
 # Env steps per seed on MARBLER's scenarios: 10M for QMIX and QMIX_NS, 20M for PPO (on-policy, so less
 # sample-efficient) and for VDN, whose sum of per-robot values still gains after 10M (Predator Capture Prey:
-# IQM 31.32 at 10M in results/pcp-vdn-10m, 32.27 at 20M in RESULTS.md). The value-based algorithms train
-# JaxRobotarium's scenarios for JaxRobotarium's own budgets (its Q-learning configs), so those rows compare
-# at equal samples; Simple Navigation is the quick check. VDN trains Predator Capture Prey for 30M: with 20M
-# four of its five seeds still gained 0.26-0.55 reward in the last quarter and the best stayed below the paper
-# (results/pcp-vdn-20m).
+# IQM 31.32 at 10M in results/pcp-vdn-10m, 32.27 at 20M in results/pcp-vdn-20m), and trains that scenario for
+# 30M: at 20M four of its five seeds still gained 0.26-0.55 reward in the last quarter and the best stayed
+# below the paper. The value-based algorithms train JaxRobotarium's scenarios for JaxRobotarium's own budgets
+# (its Q-learning configs), so those rows compare at equal samples; Simple Navigation is the quick check.
 _VALUE_STEPS = _frozen(simple_navigation=2_000_000, discovery=5_000_000, foraging=5_000_000, rware=20_000_000)
 _VDN_STEPS = _frozen(**_VALUE_STEPS, predator_capture_prey=30_000_000)
 _PPO_STEPS = _frozen(simple_navigation=300_000)
