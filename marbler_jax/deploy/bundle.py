@@ -32,7 +32,7 @@ from marbler_jax.deploy.flatten import CORE_MODULES, check_bundle_folder, flatte
 from marbler_jax.deploy.main import BUNDLE_FORMAT, CONFIG_FILE
 
 
-# rps v2 (today's Robotarium) drives the robots from the chargers to the initial poses under
+# rps v2 (the current Robotarium) drives the robots from the chargers to the initial poses under
 # create_uni_barrier_certificate(): a 0.15 m safety radius between the points 0.05 m ahead of the robots, widened
 # by twice that projection. Two initial poses whose points are closer than that are seldom reached together (the
 # drive-in mostly loops forever, and the Robotarium rejects experiments that cannot reach their initial conditions).
