@@ -255,7 +255,7 @@ def test_warm_start_of_the_wrong_shape_is_rejected():
         cbf.make_barrier("si_boundary").solve(np.zeros((5, 2)), x, barrier.initial_multipliers(5))
 
 
-def _closed_loop(kind, ticks=3000, n=20, seed=0):
+def _closed_loop(kind, ticks=1000, n=20, seed=0):
     """n robots on a circle swap to the antipodal point, controller + CBF refreshed every tick.
 
     ``kind=None`` runs the same loop without a certificate. The v2 kinds warm-start each refresh from
