@@ -356,23 +356,30 @@ def test_export_deploys_the_robots_loop_unless_told_otherwise(ippo_simple_nav_ru
         cli(["export", str(ippo_simple_nav_run), "--out", str(tmp_path / "p3"), "--control-period", "0"])
 
 
-def test_bundles_run_on_rps_v2(bundles, tmp_path):
-    """Every bundle under rps v2 (the Robotarium's simulator, with the server's numpy 2.2.6 /
-    scipy / matplotlib / cvxopt and no JAX), through v2's drive-in phase from the chargers: ``debug()``
-    passes the trained policy without an error or a warning, counts no actuator error for any bundle,
-    and every hard error it reports the bundle saw too."""
+# The default run drives in the trained bundle, Predator Capture Prey's (a control period of 15) and RWARE's (a
+# JaxRobotarium scenario): every bundle shares main.py and the robots' loop, and each drive-in takes ~5 s.
+# The others run under -m slow (all of them run under the 2023 rps above).
+V2_DEFAULT_RUN = {"simple_navigation", "predator_capture_prey", "rware"}
+
+
+@pytest.mark.parametrize("name", [n if n in V2_DEFAULT_RUN else pytest.param(n, marks=pytest.mark.slow)
+                                  for n in ("simple_navigation", *UNTRAINED)])
+def test_bundles_run_on_rps_v2(bundles, tmp_path, name):
+    """A bundle under rps v2 (the Robotarium's simulator, with the server's numpy 2.2.6 / scipy /
+    matplotlib / cvxopt and no JAX), through v2's drive-in phase from the chargers: ``debug()`` passes the
+    trained policy without an error or a warning, counts no actuator error for any bundle, and every hard
+    error it reports the bundle saw too."""
     python = _rps_v2_python()
-    for name, folder in bundles.items():
-        # one episode each: every episode drives the robots in from the chargers again (most of a run's time);
-        # the trained bundle's second episode runs under the 2023 rps above
-        stdout = _run_on_rps_v2(python, folder, tmp_path / f"trace-{name}", {"MARBLER_JAX_EPISODES": "1"})
-        assert stdout.count("episode ") == 1 and "real seconds to execute" in stdout, stdout
-        assert "exceed actuator limits" not in stdout, (name, stdout)
-        if name == "simple_navigation":
-            assert stdout.count("No errors or warnings in your simulation!") == 1, stdout
-        else:
-            assert ("robots were too close" not in stdout) or "collisions=True" in stdout, (name, stdout)
-            assert ("outside boundaries" not in stdout) or "out_of_bounds=True" in stdout, (name, stdout)
+    # one episode: every episode drives the robots in from the chargers again (most of a run's time); the
+    # trained bundle's second episode runs under the 2023 rps above
+    stdout = _run_on_rps_v2(python, bundles[name], tmp_path / "trace", {"MARBLER_JAX_EPISODES": "1"})
+    assert stdout.count("episode ") == 1 and "real seconds to execute" in stdout, stdout
+    assert "exceed actuator limits" not in stdout, (name, stdout)
+    if name == "simple_navigation":
+        assert stdout.count("No errors or warnings in your simulation!") == 1, stdout
+    else:
+        assert ("robots were too close" not in stdout) or "collisions=True" in stdout, (name, stdout)
+        assert ("outside boundaries" not in stdout) or "out_of_bounds=True" in stdout, (name, stdout)
 
 
 def test_a_drive_in_that_never_arrives_fails_the_v2_run_instead_of_hanging(bundles, tmp_path):

@@ -330,7 +330,7 @@ def test_closed_loop_without_certificate_collides():
 finite = st.floats(-3, 3, allow_nan=False, allow_infinity=False, width=32)
 
 
-@settings(max_examples=10, deadline=None)   # each new (kind, N) compiles a solver; each run draws new ones
+@settings(max_examples=5, deadline=None)   # each new (kind, N) compiles a solver; each run draws new ones
 @given(
     kind=st.sampled_from(cbf.KINDS),
     n=st.integers(1, 6),
