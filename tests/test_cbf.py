@@ -203,7 +203,8 @@ def test_jit_vmap_numpy_agree(kind):
         eager = barrier(uj, xj)
         jitted = jax.jit(barrier)(uj, xj)
         vmapped = jax.vmap(barrier)(uj, xj)
-        looped = jnp.stack([barrier(uj[i], xj[i]) for i in range(3)])
+        one = jax.jit(barrier)      # eager == jit is checked above: the loop compiles once
+        looped = jnp.stack([one(uj[i], xj[i]) for i in range(3)])
     numpy_out = barrier(u, x)  # the numpy path (deployment bundle) runs the same code
     assert isinstance(numpy_out, np.ndarray)
     np.testing.assert_allclose(jitted, eager, atol=1e-12)
@@ -222,7 +223,7 @@ def test_warm_start_from_the_solution_stays_there(kind):
     one = cbf.make_barrier(kind, iterations=1)
     with jax.enable_x64(True):
         xj, uj = jnp.asarray(x), jnp.asarray(u)
-        exact, info = cbf.make_barrier(kind, iterations=400).solve(uj, xj)
+        exact, info = jax.jit(cbf.make_barrier(kind, iterations=400).solve)(uj, xj)
         lam = info.multipliers
         assert lam.pairs.shape == (6, 7, 4)   # 8 slots (one phantom): 7 rounds of 4 pairs
         assert float(jnp.max(lam.pairs)) > 0
@@ -232,9 +233,9 @@ def test_warm_start_from_the_solution_stays_there(kind):
             assert lam.polygon.shape == (6, 7, 8) and float(jnp.max(lam.polygon)) > 0
             assert not bool(jnp.any(info.stopped))
         warm, warm_info = jax.jit(one.solve)(uj, xj, lam)
-        cold = one(uj, xj)
+        cold = jax.jit(one)(uj, xj)
         vmapped = jax.vmap(lambda a, b, c: one.solve(a, b, c)[0])(uj, xj, lam)
-        single = one.solve(uj[0], xj[0], jax.tree_util.tree_map(lambda z: z[0], lam))[0]
+        single = jax.jit(one.solve)(uj[0], xj[0], jax.tree_util.tree_map(lambda z: z[0], lam))[0]
         lam_max = float(jnp.max(lam.pairs))
     scale = float(np.abs(exact).max())
     np.testing.assert_allclose(warm, exact, atol=1e-6 * scale)
