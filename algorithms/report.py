@@ -306,6 +306,11 @@ def curve_points(runs: dict) -> tuple[np.ndarray, np.ndarray]:
     return steps, scores
 
 
+def curve_title(scenario: str) -> str:
+    """The curve plot's title: the scenario, and how the paper's reward is drawn where the paper has one."""
+    return f"{scenario} (dotted: the paper's reward, same colour)" if scenario in PAPER else scenario
+
+
 def plot_curves(scenario: str, runs_by_algo: dict, png: Path, reps: int) -> None:
     """IQM (95 % CI band) of the runs' test reward against env steps, one line per algorithm."""
     import matplotlib
@@ -328,7 +333,7 @@ def plot_curves(scenario: str, runs_by_algo: dict, png: Path, reps: int) -> None
             ax.axhline(paper["reward"][0], ls=":", lw=1.2, color=line.get_color())
     ax.set_xlabel("env steps per seed")
     ax.set_ylabel("greedy test reward (IQM, 95 % CI)")
-    ax.set_title(f"{scenario} (dotted: the paper's reward, same colour)")
+    ax.set_title(curve_title(scenario))
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()

@@ -401,3 +401,8 @@ def test_shortfalls_show_what_a_cell_misses_and_how_its_seeds_trained():
     assert "| 30.50 | 30.50 (0.0M) | — |" in table
     reaching = _runs([[34.0, 35.0]], steps=(100, 200))
     assert report.shortfall_table({ENV_NAME: {"predator_capture_prey": {"vdn": reaching}}}) is None
+
+
+def test_curve_titles_mention_the_papers_line_only_where_the_paper_has_the_scenario():
+    assert report.curve_title("warehouse") == "warehouse (dotted: the paper's reward, same colour)"
+    assert report.curve_title("discovery") == "discovery"
