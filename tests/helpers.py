@@ -14,6 +14,13 @@ def load_script(name: str):
     return module
 
 
+def slow_unless(values, default) -> list:
+    """``values`` as pytest parameters: those in ``default`` run by default, the others under ``-m slow``."""
+    import pytest
+
+    return [v if v in default else pytest.param(v, marks=pytest.mark.slow) for v in values]
+
+
 def interrupt_at(update: int):
     """An ``on_chunk`` callback that simulates Ctrl-C once chunk ``update`` has been saved."""
     def on_chunk(done: int) -> None:

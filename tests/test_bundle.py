@@ -28,7 +28,7 @@ from marbler_jax.deploy import flatten
 from marbler_jax.deploy.flatten import CORE_MODULES, check_bundle_folder, flatten_module, flatten_modules
 from marbler_jax.deploy.replay import replay_trace
 from tests.conftest import build_once
-from tests.helpers import initial_params
+from tests.helpers import initial_params, slow_unless
 
 REPO = Path(__file__).resolve().parents[1]
 RPS_VENV = REPO / ".rps-venv"
@@ -362,8 +362,7 @@ def test_export_deploys_the_robots_loop_unless_told_otherwise(ippo_simple_nav_ru
 V2_DEFAULT_RUN = {"simple_navigation", "predator_capture_prey", "rware"}
 
 
-@pytest.mark.parametrize("name", [n if n in V2_DEFAULT_RUN else pytest.param(n, marks=pytest.mark.slow)
-                                  for n in ("simple_navigation", *UNTRAINED)])
+@pytest.mark.parametrize("name", slow_unless(("simple_navigation", *UNTRAINED), V2_DEFAULT_RUN))
 def test_bundles_run_on_rps_v2(bundles, tmp_path, name):
     """A bundle under rps v2 (the Robotarium's simulator, with the server's numpy 2.2.6 / scipy /
     matplotlib / cvxopt and no JAX), through v2's drive-in phase from the chargers: ``debug()`` passes the

@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 
 from marbler_jax import cbf, controllers, physics
 from tests.conftest import robot_major
+from tests.helpers import slow_unless
 
 # golden file -> (kind, kwargs)
 GOLDEN_CBF = {
@@ -304,8 +305,7 @@ def _closed_loop(kind, ticks=1000, n=20, seed=0):
 DEFAULT_CLOSED_LOOP = {"si2", "uni_boundary", "uni_dd_boundary", "uni_boundary_v2"}
 
 
-@pytest.mark.parametrize("kind", [k if k in DEFAULT_CLOSED_LOOP else pytest.param(k, marks=pytest.mark.slow)
-                                  for k in cbf.KINDS])
+@pytest.mark.parametrize("kind", slow_unless(cbf.KINDS, DEFAULT_CLOSED_LOOP))
 def test_closed_loop_twenty_robots_never_collide(kind):
     final, hits, outside, closest, goals = _closed_loop(kind)
     assert not hits.any(), f"{kind}: first collision at tick {int(np.argmax(hits))}"

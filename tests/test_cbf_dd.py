@@ -19,6 +19,7 @@ import pytest
 from scipy.optimize import nnls
 
 from marbler_jax import cbf
+from tests.helpers import slow_unless
 
 RADIUS = 0.2   # what JaxRobotarium's deployment passes
 BOUNDS = (-1.6, 1.6, -1.0, 1.0)
@@ -114,7 +115,7 @@ def test_solution_satisfies_the_wheel_space_kkt_conditions(kind):
 
 
 # uni_dd_boundary's rows are uni_dd's plus the walls: the default run checks it, -m slow both
-@pytest.mark.parametrize("kind", [pytest.param(k, marks=pytest.mark.slow) if k == "uni_dd" else k for k in cbf.DD_KINDS])
+@pytest.mark.parametrize("kind", slow_unless(cbf.DD_KINDS, set(cbf.DD_KINDS) - {"uni_dd"}))
 def test_default_sweeps_in_float32_match_the_converged_solution(kind):
     # the golden files' acceptance rule for unicycle kinds, on random teams of 4 / 10 / 20 robots
     rng = np.random.default_rng(3)

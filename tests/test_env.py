@@ -9,7 +9,7 @@ import pytest
 import marbler_jax
 from marbler_jax import cbf, control_loop
 from marbler_jax.rollout import make_rollout
-from tests.helpers import run_with_two_devices
+from tests.helpers import run_with_two_devices, slow_unless
 
 NAMES = marbler_jax.registered()
 
@@ -22,7 +22,7 @@ def env(request):
     return marbler_jax.make(request.param)
 
 
-@pytest.fixture(scope="module", params=[n if n in MARBLER else pytest.param(n, marks=pytest.mark.slow) for n in NAMES])
+@pytest.fixture(scope="module", params=slow_unless(NAMES, MARBLER))
 def env_core(request):
     """MARBLER's scenarios in the default run; the others (the same core code path) under ``-m slow``."""
     return marbler_jax.make(request.param)

@@ -7,6 +7,7 @@ import pytest
 
 import marbler_jax
 from marbler_jax.rollout import episode_stats, make_rollout
+from tests.helpers import slow_unless
 
 TWENTY = {
     "simple_navigation": dict(n_agents=20, robot_band_right=0.0),
@@ -21,8 +22,7 @@ TWENTY = {
 DEFAULT_RUN = {"material_transport", "discovery"}   # the others are marked slow (same code path, ~9 s each)
 
 
-@pytest.mark.parametrize("name", [n if n in DEFAULT_RUN else pytest.param(n, marks=pytest.mark.slow)
-                                  for n in sorted(TWENTY)])
+@pytest.mark.parametrize("name", slow_unless(sorted(TWENTY), DEFAULT_RUN))
 def test_twenty_robots_run_without_collisions(name):
     env = marbler_jax.make(name, max_episode_steps=8, **TWENTY[name])
     assert env.num_agents == 20
