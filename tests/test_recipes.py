@@ -114,7 +114,8 @@ def test_settings_digest_names_what_trains_and_ignores_learner_devices():
 
 def test_step_budgets_name_registered_scenarios_and_match_jaxrobotarium_for_value_based():
     """A misspelt scenario in ``steps`` would silently fall back to the default budget; the value-based
-    recipes train JaxRobotarium's scenarios for JaxRobotarium's own budgets (its Q-learning configs)."""
+    recipes train JaxRobotarium's scenarios for JaxRobotarium's own budgets (its Q-learning configs), Foraging
+    for twice its budget (the recipe says why)."""
     from marbler_jax.registry import registered
 
     for algo, chosen in RECIPES.items():
@@ -122,4 +123,6 @@ def test_step_budgets_name_registered_scenarios_and_match_jaxrobotarium_for_valu
         assert set(chosen.scenario_hp) <= set(registered()), algo
     for algo in ("vdn", "qmix", "qmix_ns"):
         budgets = {s: RECIPES[algo].total_steps(s) for s in ("discovery", "foraging", "rware")}
-        assert budgets == {"discovery": 5_000_000, "foraging": 5_000_000, "rware": 20_000_000}, algo
+        assert budgets == {"discovery": 5_000_000, "foraging": 10_000_000, "rware": 20_000_000}, algo
+        assert "foraging" in RECIPES[algo].why
+        assert RECIPES[algo].hyperparameters("foraging")["eps_decay_steps"] == 5_000_000
