@@ -83,7 +83,6 @@ def test_foraging_levels_collection_and_fixed_time_penalty():
     assert int(info["resources_left"]) == 0 and not bool(done)           # no early end by default
 
 
-
 def test_foraging_scripted_team_collects_everything_under_the_certificate():
     """The whole env (controller, barrier, episode end on violations) lets a team forage: three robots
     that all drive to the open resource of the highest level collect both in every episode, so a policy
@@ -100,17 +99,17 @@ def test_foraging_scripted_team_collects_everything_under_the_certificate():
     def episode(key):
         _, state = env.reset(key)
 
-        def step(carry, _):
-            state, ended = carry
-            _, state, _, done, info = env.step_env(None, state, scripted(state))
-            return (state, ended | done), info["collisions"] | info["out_of_bounds"]
+        def step(state, _):
+            _, state, _, _, info = env.step_env(None, state, scripted(state))
+            return state, info["collisions"] | info["out_of_bounds"]
 
-        (state, _), violations = jax.lax.scan(step, (state, jnp.bool_(False)), None, env.config.max_episode_steps)
+        state, violations = jax.lax.scan(step, state, None, env.config.max_episode_steps)
         return state.scenario.level, violations
 
     level, violations = jax.jit(jax.vmap(episode))(jax.random.split(jax.random.PRNGKey(0), 32))
     assert not np.asarray(violations).any()
     assert (np.asarray(level) == -1).all()
+
 
 def test_rware_pickup_takes_the_stored_shelf_and_never_an_empty_cell():
     env = _quiet("rware")
