@@ -131,13 +131,12 @@ _MT_VDN_WHY = ("Material Transport pays three quarters of its reward at the drop
                "loading that earns it, which gamma 0.95 discounts to half (0.99: 0.87), and with 0.95 VDN's best "
                "seed stays below the paper (results/mt-vdn-gamma95).")
 
-# Foraging: explore for half of the budget, down to JaxRobotarium's final epsilon.
-_FORAGING_HP = _frozen(eps_decay_steps=5_000_000, eps_finish=0.05)
 _FORAGING_WHY = ("Foraging pays only when two or three robots meet at a resource, which random moves do in 2.5 % of "
                  "episodes: with epsilon at 0.01 after 1M steps QMIX's seeds score -1.03 to 0.81 after 5M steps and "
                  "0.52 to 4.52 after 10M, exploring for half of the 10M steps 4.54 to 4.85 (results/foraging-qmix-5m, "
                  "results/foraging-qmix-10m, results/foraging-qmix-10m-eps5).")
-_VALUE_HP = _frozen(foraging=_FORAGING_HP)
+# Foraging: explore for the first half of the budget, down to JaxRobotarium's final epsilon.
+_VALUE_HP = _frozen(foraging=_frozen(eps_decay_steps=_VALUE_STEPS["foraging"] // 2, eps_finish=0.05))
 _VALUE_WHY = _frozen(foraging=_FORAGING_WHY)
 
 RECIPES: Mapping[str, Recipe] = MappingProxyType({
