@@ -429,6 +429,22 @@ def replace_summary(text: str, table: str, name: str = "README.md") -> str:
     return text[:start + len(SUMMARY_START)] + "\n" + table + text[end:]
 
 
+def _scenario_setting_notes(tasks: dict) -> list[str]:
+    """One ‡ note per scenario and reason: algorithms whose recipes share the settings and the why share a line."""
+    notes: dict[tuple[str, str, str], list[str]] = {}
+    for s in tasks:
+        for a in tasks[s]:
+            if cell_mark(s, a, tasks[s][a]) == SCENARIO_SETTING_MARK:
+                key = (s, _settings_text(RECIPES[a].scenario_hp[s]), RECIPES[a].why[s])
+                notes.setdefault(key, []).append(a)
+    lines = []
+    for (s, settings, why), algos in notes.items():
+        names = algos[0] if len(algos) == 1 else ", ".join(algos[:-1]) + " and " + algos[-1]
+        lines += [f"{SCENARIO_SETTING_MARK} {names} on {s}: the recipe's own settings for this scenario "
+                  f"({settings}): {why}", ""]
+    return lines
+
+
 def report_markdown(results: dict, reps: int = 2000) -> str:
     """The whole report as Markdown, its curves linked as ``curves_<scenario>.png`` beside it."""
     tasks = results.get(ENV_NAME, {})
@@ -449,10 +465,7 @@ def report_markdown(results: dict, reps: int = 2000) -> str:
     if any(off_recipe(s, a, tasks[s][a]) for s, a in cells):
         parts += [f"{OFF_RECIPE_MARK} trained with other settings than the algorithm's current recipe (an earlier "
                   "recipe, another step budget or another env setting); rerun the cell to compare it with the recipe.", ""]
-    for s, a in cells:
-        if cell_mark(s, a, tasks[s][a]) == SCENARIO_SETTING_MARK:
-            parts += [f"{SCENARIO_SETTING_MARK} {a} on {s}: the recipe's own settings for this scenario "
-                      f"({_settings_text(RECIPES[a].scenario_hp[s])}): {RECIPES[a].why[s]}", ""]
+    parts += _scenario_setting_notes(tasks)
     shortfalls = shortfall_table(results)
     if shortfalls:
         parts += [shortfalls, ""]

@@ -168,6 +168,15 @@ def test_report_marks_a_cell_made_with_its_recipes_own_settings_for_the_scenario
             "the prey pay late.") in text
     assert "†" not in text
     assert "| Predator Capture Prey | **33.50**‡ (" in report.summary_table(results, reps=20)
+    # two algorithms with the same settings and reason share one note
+    own_q = dataclasses.replace(RECIPES["qmix"], scenario_hp=own.scenario_hp, why=own.why)
+    monkeypatch.setattr(report, "RECIPES", dict(RECIPES, vdn=own, qmix=own_q))
+    results[ENV_NAME]["predator_capture_prey"]["qmix"] = _runs([[20.0, 21.0]], recipe=own_q.digest(
+        "predator_capture_prey"))
+    shared = report.report_markdown(results, reps=20)
+    assert ("‡ vdn and qmix on predator_capture_prey: the recipe's own settings for this scenario (`gamma=0.99`): "
+            "the prey pay late.") in shared and shared.count("the prey pay late.") == 1
+    monkeypatch.setattr(report, "RECIPES", dict(RECIPES, vdn=own))
     # the same cell made with the recipe's common settings is off the recipe now
     results[ENV_NAME]["predator_capture_prey"]["vdn"] = _runs([[33.0, 34.0]], recipe=RECIPES["vdn"].digest(
         "predator_capture_prey"))
