@@ -432,8 +432,8 @@ def replace_summary(text: str, table: str, name: str = "README.md") -> str:
 def _scenario_setting_notes(tasks: dict) -> list[str]:
     """One ‡ note per scenario and reason: algorithms whose recipes share the settings and the why share a line."""
     notes: dict[tuple[str, str, str], list[str]] = {}
-    for s in tasks:
-        for a in tasks[s]:
+    for s in _ordered(tasks, SCENARIO_ORDER):
+        for a in _ordered(tasks[s], ALGO_ORDER):
             if cell_mark(s, a, tasks[s][a]) == SCENARIO_SETTING_MARK:
                 key = (s, _settings_text(RECIPES[a].scenario_hp[s]), RECIPES[a].why[s])
                 notes.setdefault(key, []).append(a)

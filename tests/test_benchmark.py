@@ -171,8 +171,9 @@ def test_report_marks_a_cell_made_with_its_recipes_own_settings_for_the_scenario
     # two algorithms with the same settings and reason share one note
     own_q = dataclasses.replace(RECIPES["qmix"], scenario_hp=own.scenario_hp, why=own.why)
     monkeypatch.setattr(report, "RECIPES", dict(RECIPES, vdn=own, qmix=own_q))
-    results[ENV_NAME]["predator_capture_prey"]["qmix"] = _runs([[20.0, 21.0]], recipe=own_q.digest(
-        "predator_capture_prey"))
+    results[ENV_NAME]["predator_capture_prey"] = {     # results-file order is not the table's
+        "qmix": _runs([[20.0, 21.0]], recipe=own_q.digest("predator_capture_prey")),
+        "vdn": results[ENV_NAME]["predator_capture_prey"]["vdn"]}
     shared = report.report_markdown(results, reps=20)
     assert ("‡ vdn and qmix on predator_capture_prey: the recipe's own settings for this scenario (`gamma=0.99`): "
             "the prey pay late.") in shared and shared.count("the prey pay late.") == 1
