@@ -21,7 +21,8 @@ collected the episodes, a minimal GRU of 32 units with LayerNorm, gamma 0.95, Ad
 to 0, epsilon 1 -> 0.01 over the first 1M steps (the remaining steps exploit) and each robot's previous
 action in its input; VDN on Material Transport discounts by 0.99 and the three explore Foraging for half of
 their 10M steps, down to epsilon 0.05 (``Recipe.why`` says why). The PPO
-recipe is CleanRL/MAPPO's clipped PPO over 64 parallel envs with 128-unit networks.
+recipe is CleanRL/MAPPO's clipped PPO over 64 parallel envs with 128-unit networks, trained for 20M steps on
+MARBLER's scenarios and for the value-based budgets on JaxRobotarium's.
 
 ``paper`` holds the settings of MARBLER's EPyMARL model files instead (``../shared/spec/scenarios.md``
 E.2), in MARBLER's training loop: GRU 128 agents, gamma 0.99, 5000-episode buffer, one gradient step per
@@ -124,7 +125,10 @@ _PPO = dict(lr=1e-3, num_envs=64, num_steps=64, hidden=128, update_epochs=4, num
 # Simple Navigation is the quick check.
 _VALUE_STEPS = _frozen(simple_navigation=2_000_000, discovery=5_000_000, foraging=10_000_000, rware=20_000_000)
 _VDN_STEPS = _frozen(**_VALUE_STEPS, predator_capture_prey=30_000_000)
-_PPO_STEPS = _frozen(simple_navigation=300_000)
+# PPO trains JaxRobotarium's scenarios for the same budgets, so those rows (no paper value) compare all five
+# algorithms at equal samples; JaxRobotarium publishes no PPO budget for them.
+_JAXROBOTARIUM_STEPS = {s: _VALUE_STEPS[s] for s in ("discovery", "foraging", "rware")}
+_PPO_STEPS = _frozen(simple_navigation=300_000, **_JAXROBOTARIUM_STEPS)
 _VALUE_DEFAULT_STEPS, _VDN_DEFAULT_STEPS, _PPO_DEFAULT_STEPS = 10_000_000, 20_000_000, 20_000_000
 
 _MT_VDN_WHY = ("Material Transport pays three quarters of its reward at the drop-off, up to 14 steps after the "

@@ -112,17 +112,18 @@ def test_settings_digest_names_what_trains_and_ignores_learner_devices():
     assert RECIPES["qmix"].digest("warehouse") != digest
 
 
-def test_step_budgets_name_registered_scenarios_and_match_jaxrobotarium_for_value_based():
-    """A misspelt scenario in ``steps`` would silently fall back to the default budget; the value-based
-    recipes train JaxRobotarium's scenarios for JaxRobotarium's own budgets (its Q-learning configs), Foraging
-    for twice its budget (the recipe says why)."""
+def test_step_budgets_name_registered_scenarios_and_match_jaxrobotarium():
+    """A misspelt scenario in ``steps`` would silently fall back to the default budget; every recipe trains
+    JaxRobotarium's scenarios for JaxRobotarium's own budgets (its Q-learning configs), Foraging for twice its
+    budget (the value-based recipes say why), so those rows compare the algorithms at equal samples."""
     from marbler_jax.registry import registered
 
     for algo, chosen in RECIPES.items():
         assert set(chosen.steps) <= set(registered()), algo
         assert set(chosen.scenario_hp) <= set(registered()), algo
-    for algo in ("vdn", "qmix", "qmix_ns"):
+    for algo in RECIPES:
         budgets = {s: RECIPES[algo].total_steps(s) for s in ("discovery", "foraging", "rware")}
         assert budgets == {"discovery": 5_000_000, "foraging": 10_000_000, "rware": 20_000_000}, algo
+    for algo in ("vdn", "qmix", "qmix_ns"):
         assert "foraging" in RECIPES[algo].why
         assert RECIPES[algo].hyperparameters("foraging")["eps_decay_steps"] == 5_000_000
