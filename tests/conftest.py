@@ -22,7 +22,7 @@ _CACHE = os.environ.setdefault(
     "JAX_COMPILATION_CACHE_DIR", str(Path(__file__).resolve().parents[1] / ".pytest_cache" / "jax-compilation"))
 # Cache every program, not only those that took over a second to compile (JAX's default): much of the
 # suite's time is compilation, and the many sub-second programs that several workers and CLI subprocesses
-# build add up too (BENCHMARKS.md has the suite's cold and warm times).
+# build add up too (BENCHMARKS.md has the suite's time in a fresh clone).
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 
 # The suite is compile-bound, so it compiles for speed of compilation (a setting already in XLA_FLAGS is kept):
