@@ -359,25 +359,32 @@ def training_time(tasks: dict) -> str:
 
 def time_table(results: dict) -> str:
     """Each cell's env steps, the device(s) that trained it, its training time (updates only) and wall time
-    (everything its processes did or waited for, over every invocation), and the sums over the cells."""
+    (everything its processes did or waited for, over every invocation), and the sums over the cells (and
+    over the paper's cells alone when the results also hold others)."""
     tasks = results.get(ENV_NAME, {})
-    rows, train_total, wall_total, walls = [], 0.0, 0.0, 0
+    rows, times = [], []                          # times: (in the paper's table, train s, wall s or None)
     for scenario in _ordered(tasks, SCENARIO_ORDER):
         for algo in _ordered(tasks[scenario], ALGO_ORDER):
             runs = tasks[scenario][algo]
             first = next(iter(runs.values()))[ABSOLUTE]
             train = first.get("train_seconds", [0.0])[0]
             wall = first.get("wall_seconds", [None])[0]
-            train_total += train
-            wall_total += wall or 0.0
-            walls += wall is not None
+            times.append((algo in PAPER.get(scenario, {}), train, wall))
             mark = cell_mark(scenario, algo, runs)
             rows.append(f"| {scenario} | {algo}{mark} | {first['env_steps'][0] / 1e6:.1f}M | "
                         f"{first.get('device', [UNRECORDED_DEVICE])[0]} | {train / 60:.1f} min | "
                         + (f"{wall / 60:.1f} min |" if wall is not None else "— |"))
-    cells = len(rows)
-    rows.append(f"| all {cells} cells | | | | {train_total / 3600:.2f} h | {wall_total / 3600:.2f} h"
-                + (f" ({walls} of {cells} cells recorded)" if walls < cells else "") + " |")
+
+    def total(label: str, cells: list) -> str:
+        walls = [w for _, _, w in cells if w is not None]
+        return (f"| {label} {len(cells)} cells | | | | {sum(t for _, t, _ in cells) / 3600:.2f} h | "
+                f"{sum(walls) / 3600:.2f} h"
+                + (f" ({len(walls)} of {len(cells)} cells recorded)" if len(walls) < len(cells) else "") + " |")
+
+    paper = [cell for cell in times if cell[0]]
+    if 0 < len(paper) < len(times):
+        rows.append(total("the paper's", paper))
+    rows.append(total("all", times))
     head = ["### Time per cell", "",
             "*Training*: the updates alone; *wall time*: everything the cell's processes did or waited for "
             "(compilation, greedy tests, checkpoints, the final evaluation, other processes on the same CPU), "

@@ -104,6 +104,22 @@ def test_wall_clock_names_every_device_that_trained_a_resumed_cell(tmp_path):
     assert benchmark.WallClock(tmp_path, resume=False, device="cpu").device() == "cpu"
 
 
+def test_time_table_sums_the_paper_cells_apart_from_the_others():
+    results = {ENV_NAME: {"predator_capture_prey": {"vdn": _runs([[1.0]]), "ippo": _runs([[1.0]])},
+                          "rware": {"mappo": _runs([[1.0]])}}}
+    for cell, (train, wall) in zip([("predator_capture_prey", "vdn"), ("predator_capture_prey", "ippo"),
+                                    ("rware", "mappo")], [(3600.0, 3960.0), (1800.0, None), (7200.0, 7560.0)]):
+        absolute = results[ENV_NAME][cell[0]][cell[1]]["run_0"][ABSOLUTE]
+        absolute["train_seconds"] = [train]
+        if wall is not None:
+            absolute["wall_seconds"] = [wall]
+    rows = report.time_table(results).splitlines()
+    assert rows[-2] == "| the paper's 1 cells | | | | 1.00 h | 1.10 h |"       # IPPO has no paper value
+    assert rows[-1] == "| all 3 cells | | | | 3.50 h | 3.20 h (2 of 3 cells recorded) |"
+    only_paper = {ENV_NAME: {"predator_capture_prey": {"vdn": results[ENV_NAME]["predator_capture_prey"]["vdn"]}}}
+    assert not any(row.startswith("| the paper's") for row in report.time_table(only_paper).splitlines())
+
+
 def test_report_renders_tables_curves_and_improvement(tmp_path):
     from marbler_jax_rl.recipes import RECIPES
 
