@@ -127,3 +127,6 @@ def test_step_budgets_name_registered_scenarios_and_match_jaxrobotarium():
     for algo in ("vdn", "qmix", "qmix_ns"):
         assert "foraging" in RECIPES[algo].why
         assert RECIPES[algo].hyperparameters("foraging")["eps_decay_steps"] == 5_000_000
+    # RWARE: only QMIX, whose seeds did not deliver with the shared exploration schedule, explores longer
+    assert [a for a in RECIPES if "rware" in RECIPES[a].scenario_hp] == ["qmix"]
+    assert RECIPES["qmix"].hyperparameters("rware")["eps_decay_steps"] == 5_000_000 and "rware" in RECIPES["qmix"].why
