@@ -139,8 +139,10 @@ _FORAGING_WHY = ("Foraging pays only when two or three robots meet at a resource
                  "episodes: with epsilon at 0.01 after 1M steps QMIX's seeds score -1.03 to 0.81 after 5M steps and "
                  "0.52 to 4.52 after 10M, exploring for half of the 10M steps 4.54 to 4.85 (results/foraging-qmix-5m, "
                  "results/foraging-qmix-10m, results/foraging-qmix-10m-eps5).")
+_JAXROBOTARIUM_EPS_FINISH = 0.05     # the final epsilon of JaxRobotarium's Q-learning configs
 # Foraging: explore for the first half of the budget, down to JaxRobotarium's final epsilon.
-_VALUE_HP = _frozen(foraging=_frozen(eps_decay_steps=_VALUE_STEPS["foraging"] // 2, eps_finish=0.05))
+_VALUE_HP = _frozen(foraging=_frozen(eps_decay_steps=_VALUE_STEPS["foraging"] // 2,
+                                     eps_finish=_JAXROBOTARIUM_EPS_FINISH))
 _VALUE_WHY = _frozen(foraging=_FORAGING_WHY)
 # RWARE's longer exploration is QMIX's alone: VDN, whose seeds all deliver with the shared schedule, scores less
 # with it (IQM 2.56 against 6.37 over five seeds, results/rware-vdn-eps5).
@@ -154,7 +156,8 @@ RECIPES: Mapping[str, Recipe] = MappingProxyType({
                   scenario_hp=_frozen(**_VALUE_HP, material_transport=_frozen(gamma=0.99)),
                   why=_frozen(**_VALUE_WHY, material_transport=_MT_VDN_WHY)),
     "qmix": Recipe("qmix", QMIXConfig(**_VALUE), steps=_VALUE_STEPS, default_steps=_VALUE_DEFAULT_STEPS,
-                   scenario_hp=_frozen(**_VALUE_HP, rware=_frozen(eps_decay_steps=5_000_000, eps_finish=0.05)),
+                   scenario_hp=_frozen(**_VALUE_HP, rware=_frozen(eps_decay_steps=5_000_000,
+                                                                   eps_finish=_JAXROBOTARIUM_EPS_FINISH)),
                    why=_frozen(**_VALUE_WHY, rware=_RWARE_QMIX_WHY)),
     "qmix_ns": Recipe("qmix_ns", QMIXNSConfig(**_VALUE), steps=_VALUE_STEPS, default_steps=_VALUE_DEFAULT_STEPS,
                       scenario_hp=_VALUE_HP, why=_VALUE_WHY),
