@@ -41,10 +41,15 @@ from .driver import (ALGORITHMS, TESTS_FILE, atomic_write, build_config, changed
                      make_tester, run_config, seed_best_scores, train)
 from .recipes import recipe, settings_digest
 from marbler_jax.registry import canonical_name
+from marbler_jax.scenarios.base import merge_settings
 
 ENV_NAME = "marbler"
 PAPER_ALGOS = ("vdn", "qmix", "qmix_ns", "mappo", "ippo")
 PAPER_SCENARIOS = ("predator_capture_prey", "warehouse", "material_transport", "arctic_transport")
+DEFAULT_RESULTS = {None: "results/marbler-table2", "robots": "results/marbler-table2",
+                   "marbler": "results/marbler-table2-protocol"}
+"""The results folder of ``marbler-jax benchmark`` by ``--protocol``: the recipes' table (robots' loop) and
+MARBLER's protocol, the like-for-like comparison with the paper."""
 # JaxRobotarium's scenarios: benchmark rows without paper values (``--scenarios`` names them)
 JAXROBOTARIUM_SCENARIOS = ("discovery", "foraging", "rware")
 ABSOLUTE = "absolute_metrics"
@@ -123,7 +128,7 @@ def cell_settings(chosen, scenario: str, total_steps: int | None = None, env_ove
     ``hp_overrides`` that its algorithm has on top of its hyperparameters, where given."""
     env, hp, steps = chosen.settings(scenario)
     hp.update({k: v for k, v in (hp_overrides or {}).items() if has_setting(chosen.algo, k)})
-    return dict(env, **(env_overrides or {})), hp, int(total_steps or steps)
+    return merge_settings(env, env_overrides or {}), hp, int(total_steps or steps)
 
 
 def check_hp_overrides(hp_overrides: dict, algos) -> None:

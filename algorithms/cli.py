@@ -199,8 +199,10 @@ def _train(args) -> int:
     from .recipes import settings
     from marbler_jax.registry import canonical_name
 
+    from marbler_jax.scenarios.base import merge_settings
+
     env_overrides, hp, steps = settings(args.preset, canonical_name(args.scenario), args.algo)
-    env_overrides.update(parse_overrides(args.set))
+    env_overrides = merge_settings(env_overrides, _env_settings(args))
     hp.update(parse_overrides(args.hp, "--hp"))
     from .data_parallel import use_cpu_devices
 
@@ -220,9 +222,23 @@ def _train(args) -> int:
     return 0
 
 
+def _env_settings(args) -> dict:
+    """Env settings of ``--set KEY=VALUE`` options and ``--protocol``."""
+    settings = parse_overrides(args.set)
+    if getattr(args, "protocol", None):
+        if settings.get("protocol", args.protocol) != args.protocol:
+            raise ValueError(f"--protocol {args.protocol} and --set protocol={settings['protocol']} disagree; drop one")
+        settings["protocol"] = args.protocol
+    return settings
+
+
 def _benchmark(args) -> int:
     shard = _parse_shard(args.shard)
-    env_overrides, hp_overrides = parse_overrides(args.set), parse_overrides(args.hp, "--hp")
+    env_overrides, hp_overrides = _env_settings(args), parse_overrides(args.hp, "--hp")
+    if args.out is None:
+        from .benchmark import DEFAULT_RESULTS
+
+        args.out = DEFAULT_RESULTS.get(env_overrides.get("protocol"), DEFAULT_RESULTS[None])
     if args.dry_run:
         if args.coordinator:
             raise ValueError("--dry-run shows one process's cells: give --shard I/N instead of --coordinator")
@@ -369,18 +385,61 @@ def _evaluate(args) -> int:
     import json
 
     from .driver import atomic_write
-    from .evaluate import evaluate_run, markdown_table
+    from .evaluate import evaluate_policy, evaluate_run, markdown_table
+    from marbler_jax.numpy_policy import SPEC_FILE
 
-    result = evaluate_run(args.run, args.episodes, args.checkpoint, seed=args.seed, progress=not args.no_progress,
-                          seed_selection="best" if args.best_seed else "all")
-    table = markdown_table(result)
+    overrides = {"protocol": args.protocol} if args.protocol else {}
     run = Path(args.run)
-    stem = f"eval_{args.checkpoint}" + ("_best_seed" if args.best_seed else "")
-    atomic_write(run / f"{stem}.json", json.dumps(result, indent=2))
+    suffix = f"_{args.protocol}" if args.protocol else ""
+    if (run / SPEC_FILE).exists():                  # a policy folder: its files stay as they are
+        result = evaluate_policy(run, args.episodes, seed=args.seed, env_overrides=overrides)
+        print(markdown_table(dict(result, seeds=1, episodes_per_seed=args.episodes, checkpoint="policy folder's")))
+        if args.json:
+            atomic_write(Path(args.json), json.dumps(result, indent=2))
+            print(f"written: {args.json}")
+        return 0
+    result = evaluate_run(args.run, args.episodes, args.checkpoint, seed=args.seed, progress=not args.no_progress,
+                          seed_selection="best" if args.best_seed else "all", env_overrides=overrides)
+    table = markdown_table(result)
+    stem = f"eval_{args.checkpoint}" + ("_best_seed" if args.best_seed else "") + suffix
+    json_path = Path(args.json) if args.json else run / f"{stem}.json"
+    atomic_write(json_path, json.dumps(result, indent=2))
     atomic_write(run / f"{stem}.md", table)
     print(table)
-    print(f"written: {run / f'{stem}.json'}, {run / f'{stem}.md'}")
+    print(f"written: {json_path}, {run / f'{stem}.md'}")
     return 0
+
+
+def _import(args) -> int:
+    from .epymarl import import_model
+
+    from marbler_jax.deploy.main import CONFIG_FILE
+    from marbler_jax.deploy.bundle import check_target, write_bundle
+
+    if args.bundle is not None:
+        check_target(args.bundle, CONFIG_FILE, "bundle", args.force)
+    spec = import_model(args.model, args.config, args.scenario, args.out, {"protocol": args.protocol},
+                        force=args.force)
+    origin = spec["origin"]
+    print(f"imported {args.model} (EPyMARL {origin['agent']}, {spec['algo']}, GRU {spec['hidden']}, "
+          f"{'shared' if spec['shared'] else 'per-robot'} parameters) for {spec['scenario']} to {args.out}")
+    print(f"evaluate it: marbler-jax evaluate {args.out} (protocol {args.protocol}; --protocol robots for the "
+          "robots' loop)")
+    if args.bundle is not None:
+        import marbler_jax
+
+        env = marbler_jax.make(spec["scenario"], **merge_robots_loop(spec["env"]))
+        write_bundle(env, args.out, args.bundle, spec["algo"], episodes=args.episodes, force=args.force)
+        _print_bundle(Path(args.bundle))
+    return 0
+
+
+def merge_robots_loop(settings: dict) -> dict:
+    """``settings`` with controller and barrier every iteration, as a bundle runs on the robots."""
+    from marbler_jax.control_loop import ROBOTS_CONTROL_PERIOD
+    from marbler_jax.scenarios.base import merge_settings
+
+    return merge_settings(settings, {"control_period": ROBOTS_CONTROL_PERIOD})
 
 
 def _quickstart(args) -> int:
@@ -484,11 +543,17 @@ PROGRESS_LEGEND = ("progress bar: updates done / all, elapsed < ETA and updates/
 CHECKPOINT_HELP = "which parameters of the run: each seed's best greedy test (best) or the end of training (final)"
 
 
+PROTOCOL_HELP = ("marbler: MARBLER's shipped protocol, that of the paper's Table II (rps 6bb184e, controller and "
+                 "barrier every 15 iterations, all-zero first observation); robots: the robots' loop (every "
+                 "iteration); default: the recipe's / the run's settings")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .benchmark import PAPER_ALGOS, PAPER_SCENARIOS
     from .driver import ALGORITHMS, SEED_BATCHING
     from .recipes import RECIPE_NAMES
     from .run import CHECKPOINTS, DEFAULT_CHECKPOINT
+    from marbler_jax.scenarios.base import PROTOCOLS
     from marbler_jax import cbf, physics
     from marbler_jax.control_loop import ROBOTS_CONTROL_PERIOD
 
@@ -531,6 +596,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="base PRNG seed: the seeds' keys are split from PRNGKey(seed) (default 0)")
     tr.add_argument("--out", default="runs/train")
     tr.add_argument("--set", action="append", metavar="KEY=VALUE", help="env config override (repeatable)")
+    tr.add_argument("--protocol", choices=list(PROTOCOLS), default=None, help=PROTOCOL_HELP)
     tr.add_argument("--hp", action="append", metavar="KEY=VALUE", help="algorithm setting (repeatable)")
     tr.add_argument("--checkpoint-every", type=int, default=None, help="updates per chunk/checkpoint (default: 1/10 of the run)")
     tr.add_argument("--test-episodes", type=int, default=64,
@@ -548,14 +614,21 @@ def build_parser() -> argparse.ArgumentParser:
                     help="vmap: seeds vectorized in one batch (default); map: one after another in the program; "
                          "devices: the seeds spread over the devices (on a CPU, one device per core)")
     tr.set_defaults(func=_train)
-    ev = sub.add_parser("evaluate", help="paper-style metrics (MARBLER Table II) of a run's best checkpoint")
-    ev.add_argument("run", help="run folder written by `marbler-jax train`")
+    ev = sub.add_parser("evaluate", help="paper-style metrics (MARBLER Table II) of a run's best checkpoint "
+                                         "or of a policy folder (exported or imported)")
+    ev.add_argument("run", help="run folder written by `marbler-jax train`, or a policy folder written by "
+                                "`marbler-jax export` or `marbler-jax import`")
     ev.add_argument("--episodes", type=int, default=100, help="greedy episodes per seed")
+    ev.add_argument("--protocol", choices=list(PROTOCOLS), default=None,
+                    help="evaluate in this protocol instead of the one the policy trained in: " + PROTOCOL_HELP)
     ev.add_argument("--checkpoint", default=DEFAULT_CHECKPOINT, choices=CHECKPOINTS, help=CHECKPOINT_HELP)
     ev.add_argument("--seed", type=int, default=0)
     ev.add_argument("--best-seed", action="store_true",
                     help="only the seed with the highest greedy test return, as the paper's Table II reports the "
                          "best of five seeds' models (writes eval_<checkpoint>_best_seed.json/.md)")
+    ev.add_argument("--json", default=None, metavar="FILE",
+                    help="write the result here (default for a run: eval_<checkpoint>[_best_seed][_<protocol>].json "
+                         "in the run folder; a policy folder is never written to)")
     ev.add_argument("--no-progress", action="store_true")
     ev.set_defaults(func=_evaluate)
     ex = sub.add_parser("export", help="write a run's policy as numpy .npy files (runs without JAX)")
@@ -589,7 +662,9 @@ def build_parser() -> argparse.ArgumentParser:
     bm.add_argument("--algos", nargs="+", default=list(PAPER_ALGOS), choices=sorted(ALGORITHMS))
     bm.add_argument("--scenarios", nargs="+", default=list(PAPER_SCENARIOS))
     bm.add_argument("--seeds", type=int, default=5, help="seeds per cell, trained in one vmapped program")
-    bm.add_argument("--out", default="results/marbler-table2", help="results folder (results.json, runs/)")
+    bm.add_argument("--out", default=None, help="results folder (results.json, runs/); default: "
+                    "results/marbler-table2, with --protocol marbler results/marbler-table2-protocol")
+    bm.add_argument("--protocol", choices=list(PROTOCOLS), default=None, help=PROTOCOL_HELP)
     bm.add_argument("--total-steps", type=env_steps, default=None,
                     help="env steps per seed for every cell (default: each recipe's)")
     bm.add_argument("--set", action="append", metavar="KEY=VALUE",
@@ -620,6 +695,18 @@ def build_parser() -> argparse.ArgumentParser:
                     help="list the cells and what a run would do with each (done, resume from update k, restart, "
                          "new) and the env steps left; train nothing")
     bm.set_defaults(func=_benchmark)
+    im = sub.add_parser("import", help="convert an EPyMARL model (MARBLER's paper models) into a numpy policy folder")
+    im.add_argument("model", help="EPyMARL agent state dict (.th; read without torch)")
+    im.add_argument("--config", required=True, help="the model's EPyMARL config (.json)")
+    im.add_argument("--scenario", required=True, help="scenario the model acts in (see `marbler-jax list`)")
+    im.add_argument("--out", required=True, help="policy folder to write")
+    im.add_argument("--protocol", choices=list(PROTOCOLS), default="marbler",
+                    help="the env protocol the policy records (evaluate's default): MARBLER's models trained in "
+                         "'marbler'")
+    im.add_argument("--bundle", default=None, help="also write a Robotarium submission bundle to this folder")
+    im.add_argument("--episodes", type=int, default=2, help="episodes the bundle runs")
+    im.add_argument("--force", action="store_true", help="replace --out / --bundle even if they hold other files")
+    im.set_defaults(func=_import)
     rp = sub.add_parser("report", help="tables (IQM, 95%% CI, best seed, paper), curves and probability of "
                         "improvement from a benchmark's results")
     rp.add_argument("results", help="benchmark folder (its results*.json are merged)")

@@ -72,14 +72,15 @@ def summarize(values: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
 
 
 def evaluate_run(run, episodes: int = 100, checkpoint: str = DEFAULT_CHECKPOINT, seed: int = 0, progress: bool = False,
-                 seed_selection: str = "all") -> dict:
+                 seed_selection: str = "all", env_overrides: dict | None = None) -> dict:
     """Table II metrics of every seed of run folder ``run`` and pooled over seeds, or with
     ``seed_selection="best"`` of the one seed :meth:`Run.best_seed` picks (the paper's protocol).
 
     The policy is evaluated in the loop it trained in (``pooled``, ``per_seed``) and, when that loop's
     ``control_period`` is not 1, also in the robots' loop that a bundle deploys (``deployed``: the same
     env with controller and barrier every tick, the same start states): MARBLER's sim-vs-real
-    comparison as training loop vs deployment loop, in simulation."""
+    comparison as training loop vs deployment loop, in simulation. ``env_overrides`` (e.g.
+    ``{"protocol": "marbler"}``) evaluate in another env than the one the run trained in."""
     if seed_selection not in ("all", "best"):
         raise ValueError(f"seed_selection must be 'all' or 'best', got {seed_selection!r}")
 
@@ -87,7 +88,7 @@ def evaluate_run(run, episodes: int = 100, checkpoint: str = DEFAULT_CHECKPOINT,
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     config = opened.config
-    env = opened.env()
+    env = opened.env(**(env_overrides or {}))
     greedy = ALGORITHMS[opened.algo][2]
     cfg = opened.algorithm_config()
     params = opened.params(checkpoint)
@@ -113,11 +114,43 @@ def evaluate_run(run, episodes: int = 100, checkpoint: str = DEFAULT_CHECKPOINT,
     summaries = {name: summarize({k: np.concatenate(v) for k, v in pooled[name].items()}) for name in loops}
     result = dict(scenario=config["scenario"], algo=config["algo"], checkpoint=checkpoint, episodes_per_seed=episodes,
                   seeds=n_seeds, seed_selection=seed_selection, seed_indices=list(seeds),
-                  control_period=env.config.control_period, pooled=summaries["trained"], per_seed=per_seed["trained"],
+                  control_period=env.config.control_period, protocol=env.config.protocol,
+                  pooled=summaries["trained"], per_seed=per_seed["trained"],
                   paper=PAPER.get(config["scenario"], {}).get(config["algo"]))
     if "deployed" in loops:
         result["deployed"] = dict(control_period=ROBOTS_CONTROL_PERIOD, pooled=summaries["deployed"],
                                   per_seed=per_seed["deployed"])
+    return result
+
+
+def evaluate_policy(folder, episodes: int = 100, seed: int = 0, env_overrides: dict | None = None,
+                    per_episode: bool = False) -> dict:
+    """Table II metrics of the numpy policy folder ``folder`` (exported, or imported with ``marbler-jax
+    import``), acting greedily in ``episodes`` batched episodes of its scenario with the env settings its
+    spec records (``env``) and ``env_overrides`` on top (e.g. ``{"protocol": "robots"}``). The policy's
+    forward pass runs in JAX; ``per_episode`` keeps every episode's metrics (``episodes_metrics``)."""
+    import marbler_jax
+    from marbler_jax.numpy_policy import load_policy
+    from marbler_jax.rollout import numpy_policy_greedy
+
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
+    policy = load_policy(folder)
+    spec = policy.spec
+    if "scenario" not in spec:
+        raise ValueError(f"the policy in {folder} names no scenario in its spec")
+    settings = {**spec.get("env", {}), **(env_overrides or {})}
+    env = marbler_jax.make(spec["scenario"], **settings)
+    if (env.num_agents, env.obs_dim, env.num_actions) != (policy.num_agents, policy.obs_dim, spec["num_actions"]):
+        raise ValueError(f"the policy in {folder} is for {policy.num_agents} robots with {policy.obs_dim} observation "
+                         f"features and {spec['num_actions']} actions; {env.name} with {settings} has "
+                         f"{env.num_agents}, {env.obs_dim} and {env.num_actions}")
+    values = greedy_episodes(env, numpy_policy_greedy(policy), episodes, jax.random.PRNGKey(seed))
+    result = dict(scenario=env.name, algo=spec.get("algo"), policy=str(folder), env=settings, episodes=episodes,
+                  seed=seed, control_period=env.config.control_period, pooled=summarize(values),
+                  paper=PAPER.get(env.name, {}).get(spec.get("algo")))
+    if per_episode:
+        result["episodes_metrics"] = {k: v.tolist() for k, v in values.items()}
     return result
 
 
@@ -152,4 +185,4 @@ def markdown_table(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["evaluate_run", "markdown_table", "greedy_episodes", "first_episodes", "PAPER"]
+__all__ = ["evaluate_run", "evaluate_policy", "markdown_table", "greedy_episodes", "first_episodes", "PAPER"]

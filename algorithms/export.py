@@ -51,7 +51,17 @@ def export_params(algo: str, cfg, params, env, out, extra: dict | None = None, f
     fields, tensors = policy_tensors(algo, cfg, params)
     spec = dict(format=FORMAT, algo=algo, scenario=env.name, num_agents=env.num_agents, obs_dim=env.obs_dim,
                 num_actions=env.num_actions, shared=bool(cfg.shared), agent_ids=bool(cfg.agent_ids), **fields,
-                tensors={name: f"{name.replace('.', '_')}.npy" for name in tensors}, **(extra or {}))
+                **(extra or {}))
+    return write_policy(spec, tensors, out, force)
+
+
+def write_policy(spec: dict, tensors: dict, out, force: bool = False) -> NumpyPolicy:
+    """Write ``spec`` (without ``tensors`` / ``sha256``, which this adds) and ``tensors`` as the policy
+    folder ``out``, checked by loading before anything is replaced; returns the numpy policy. The folder is
+    written under a temporary name and renamed into place."""
+    check_target(out, SPEC_FILE, "policy", force)
+    spec = dict(spec, tensors={name: f"{name.replace('.', '_')}.npy" for name in tensors})
+    policy = NumpyPolicy(spec, tensors)
     out = Path(out)
     tmp = out.with_name(out.name + ".tmp")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -61,7 +71,7 @@ def export_params(algo: str, cfg, params, env, out, extra: dict | None = None, f
     spec["sha256"] = {file: file_sha256(tmp / file) for file in spec["tensors"].values()}
     np.save(tmp / SPEC_FILE, np.array(json.dumps(spec, indent=1)), allow_pickle=False)
     replace_folder(tmp, out)
-    return NumpyPolicy(spec, tensors)
+    return policy
 
 
 def export_policy(run, out, seed_index: int = 0, checkpoint: str = DEFAULT_CHECKPOINT, bundle=None, episodes: int = 2,
@@ -96,4 +106,4 @@ def export_policy(run, out, seed_index: int = 0, checkpoint: str = DEFAULT_CHECK
     return spec
 
 
-__all__ = ["export_policy", "export_params", "policy_tensors"]
+__all__ = ["export_policy", "export_params", "policy_tensors", "write_policy"]

@@ -59,8 +59,11 @@ class Run:
         return int(self.config["seeds"])
 
     def env(self, **overrides):
-        """The env the run trained in, with ``overrides`` (e.g. ``control_period=1``) on top."""
-        return marbler_jax.make(self.scenario, **{**self.config["env"], **overrides})
+        """The env the run trained in, with ``overrides`` (e.g. ``control_period=1``, or ``protocol="marbler"``,
+        which replaces the settings it decides) on top."""
+        from marbler_jax.scenarios.base import merge_settings
+
+        return marbler_jax.make(self.scenario, **merge_settings(self.config["env"], overrides))
 
     def algorithm_config(self):
         """The algorithm's typed config as trained."""

@@ -102,7 +102,8 @@ def finish_step(scenario, poses, scenario_state, actions, collided, outside, ste
     With ``penalize_violations`` a collision or boundary violation voids the step's task events,
     gives every agent ``scenario.violation_reward`` and ends the episode. Otherwise the scenario's
     task events apply; the episode ends when the step counter exceeds ``max_episode_steps`` or the
-    task is complete.
+    task is complete. The observation shows the step's events even on a violation step (MARBLER
+    applies them, then checks for the violation; only the reward and the next state void them).
 
     Args:
         scenario: a :class:`marbler_jax.scenarios.base.Scenario`.
@@ -119,12 +120,12 @@ def finish_step(scenario, poses, scenario_state, actions, collided, outside, ste
     config = scenario.config
     dtype = poses.dtype
     violated = (collided | outside) & config.penalize_violations
-    new_state, task_rewards, completed = scenario.update(poses, scenario_state, actions)
-    new_state = select_state(violated, scenario_state, new_state)
+    applied, task_rewards, completed = scenario.update(poses, scenario_state, actions)
+    new_state = select_state(violated, scenario_state, applied)
     rewards = xp.where(violated, xp.asarray(scenario.violation_reward, dtype=dtype), xp.asarray(task_rewards, dtype=dtype))
     step = step + 1
     done = violated | (step > config.max_episode_steps) | (completed & ~violated)
-    seen = scenario.observation_state(scenario_state, new_state)
+    seen = scenario.observation_state(scenario_state, applied)
     obs = xp.asarray(scenario.observe(poses, seen), dtype=dtype)
     return new_state, rewards, done, violated, obs, step
 

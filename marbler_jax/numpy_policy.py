@@ -20,9 +20,10 @@ flax modules in ``algorithms/networks.py``):
   previous action (zeros at the first step), then with ``shared`` and ``agent_ids`` the agent-ID
   one-hot; ``x = relu(input W_fc1 + b)`` (with ``layer_norm``, every ``relu(y)`` of a hidden
   layer is ``relu(LN(y))``, ``LN(y) = (y - mean(y)) / sqrt(var(y) + 1e-6) * scale + bias`` over the
-  last axis, parameters ``ln1`` after ``fc1`` and ``ln_out`` after ``fc_out`` / ``fc_hidden``); recurrent: flax ``GRUCell`` --
-  ``r = s(x W_ir + b_ir + h W_hr)``, ``z = s(x W_iz + b_iz + h W_hz)``,
-  ``n = tanh(x W_in + b_in + r * (h W_hn + b_hn))``, ``h' = (1 - z) n + z h``, ``x = h'``;
+  last axis, parameters ``ln1`` after ``fc1`` and ``ln_out`` after ``fc_out`` / ``fc_hidden``); recurrent: a GRU cell --
+  ``r = s(x W_ir + b_ir + h W_hr [+ b_hr])``, ``z = s(x W_iz + b_iz + h W_hz [+ b_hz])``,
+  ``n = tanh(x W_in + b_in + r * (h W_hn + b_hn))``, ``h' = (1 - z) n + z h``, ``x = h'`` (flax's
+  ``GRUCell`` has no ``b_hr`` / ``b_hz``; torch's, in imported EPyMARL agents, has them);
   minimal GRU: ``[g_z, g_c] = x W_mingru + b``, ``z = s(g_z)``, ``h' = (1 - z) h + z g_c``,
   ``x = relu(h' W_fc_out + b)``; feed-forward: ``x = relu(x W_fc_hidden + b)``; ``q = x W_fc2 + b``.
 * ``actor``: ``Dense -> act -> ... -> Dense`` (logits).
@@ -39,13 +40,16 @@ from pathlib import Path
 
 import numpy as np
 
+from marbler_jax.xp import namespace
+
 FORMAT = "marbler-jax-policy/1"
 SPEC_FILE = "policy_spec.npy"
 CELLS = ("gru", "mingru", "none")      # a Q-agent's memory (marbler_jax_rl.networks.QAgent uses the same names)
 
 
-def _sigmoid(x):
-    return 1.0 / (1.0 + np.exp(-x))
+def _sigmoid(x, xp=np):
+    """The logistic function, as ``(1 + tanh(x / 2)) / 2``: no overflow for large negative ``x``."""
+    return 0.5 * (1.0 + xp.tanh(0.5 * x))
 
 
 class NumpyPolicy:
@@ -116,73 +120,79 @@ class NumpyPolicy:
         if self.spec["shared"]:
             y = x @ kernel
         else:                      # per-agent parameters: agent i's kernel on agent i's row
-            y = np.einsum("...ni,nio->...no", x, kernel)
+            y = namespace(x).einsum("...ni,nio->...no", x, kernel)
         return y if bias is None else y + bias
 
     def _relu_layer(self, name, norm, x):
         """``relu(x W + b)``, layer-normalised first (flax ``LayerNorm``: epsilon 1e-6) with ``layer_norm``."""
+        xp = namespace(x)
         y = self._dense(name, x)
         if self.layer_norm:
             mean = y.mean(-1, keepdims=True)
-            var = np.square(y - mean).mean(-1, keepdims=True)
-            y = (y - mean) / np.sqrt(var + 1e-6) * self.t[f"{norm}.scale"] + self.t[f"{norm}.bias"]
-        return np.maximum(y, 0)
+            var = xp.square(y - mean).mean(-1, keepdims=True)
+            y = (y - mean) / xp.sqrt(var + 1e-6) * self.t[f"{norm}.scale"] + self.t[f"{norm}.bias"]
+        return xp.maximum(y, 0)
 
     def inputs(self, obs, last=None) -> np.ndarray:
         """Network inputs of ``obs [..., N, D]`` (``last [..., N, A]``: the previous actions' one-hot,
         used with ``last_action``)."""
-        obs = np.asarray(obs, np.float32)
+        xp = namespace(obs, last)
+        obs = xp.asarray(obs, xp.float32)
         if obs.shape[-2:] != (self.num_agents, self.obs_dim):
             raise ValueError(f"observations must be [..., {self.num_agents}, {self.obs_dim}], got {obs.shape}")
         if self.last_action:
-            obs = np.concatenate([obs, np.broadcast_to(last, obs.shape[:-1] + (self.num_actions,))], axis=-1)
+            obs = xp.concatenate([obs, xp.broadcast_to(last, obs.shape[:-1] + (self.num_actions,))], axis=-1)
         if self.spec["agent_ids"] and self.spec["shared"]:
-            ids = np.broadcast_to(np.eye(self.num_agents, dtype=np.float32), obs.shape[:-1] + (self.num_agents,))
-            obs = np.concatenate([obs, ids], axis=-1)
+            ids = xp.broadcast_to(xp.eye(self.num_agents, dtype=xp.float32), obs.shape[:-1] + (self.num_agents,))
+            obs = xp.concatenate([obs, ids], axis=-1)
         return obs
 
     def values(self, obs, hidden=None):
         """``(Q-values or logits [..., N, A], new memory [..., N, M])`` for ``obs [..., N, D]`` and the
         memory ``hidden`` (``None``: the initial one); with ``last_action`` the new memory holds the
-        greedy action's one-hot."""
+        greedy action's one-hot. numpy in, numpy out; JAX arrays in (e.g. under ``jax.jit``), JAX out."""
+        xp = namespace(obs, hidden)
+        if hidden is not None:
+            hidden = xp.asarray(hidden, xp.float32)
         last = None
         if self.last_action:
-            memory = self.initial_hidden() if hidden is None else np.asarray(hidden, np.float32)
+            memory = self.initial_hidden() if hidden is None else hidden
             hidden, last = memory[..., :self.hidden_width], memory[..., self.hidden_width:]
         x = self.inputs(obs, last)
         if self.spec["kind"] == "actor":
-            act = {"tanh": np.tanh, "relu": lambda v: np.maximum(v, 0)}[self.spec["activation"]]
+            act = {"tanh": xp.tanh, "relu": lambda v: xp.maximum(v, 0)}[self.spec["activation"]]
             layers = self.spec["layers"]
             for name in layers[:-1]:
                 x = act(self._dense(name, x))
             return self._dense(layers[-1], x), hidden
         x = self._relu_layer("fc1", "ln1", x)
         if self.recurrent:
-            h = self.initial_hidden() if hidden is None else np.asarray(hidden, np.float32)
+            h = self.initial_hidden() if hidden is None else hidden
         if self.cell == "gru":
-            r = _sigmoid(self._dense("gru.ir", x) + self._dense("gru.hr", h))
-            z = _sigmoid(self._dense("gru.iz", x) + self._dense("gru.hz", h))
-            n = np.tanh(self._dense("gru.in", x) + r * self._dense("gru.hn", h))
+            r = _sigmoid(self._dense("gru.ir", x) + self._dense("gru.hr", h), xp)
+            z = _sigmoid(self._dense("gru.iz", x) + self._dense("gru.hz", h), xp)
+            n = xp.tanh(self._dense("gru.in", x) + r * self._dense("gru.hn", h))
             hidden = (1.0 - z) * n + z * h
             x = hidden
         elif self.cell == "mingru":
             gates = self._dense("mingru", x)
             width = h.shape[-1]
-            z = _sigmoid(gates[..., :width])
+            z = _sigmoid(gates[..., :width], xp)
             hidden = (1.0 - z) * h + z * gates[..., width:]
             x = self._relu_layer("fc_out", "ln_out", hidden)
         else:
             x = self._relu_layer("fc_hidden", "ln_out", x)
         values = self._dense("fc2", x)
         if self.last_action:
-            greedy = np.eye(self.num_actions, dtype=np.float32)[np.argmax(values, axis=-1)]
-            hidden = np.concatenate([np.broadcast_to(hidden, greedy.shape[:-1] + hidden.shape[-1:]), greedy], -1)
+            greedy = xp.eye(self.num_actions, dtype=xp.float32)[xp.argmax(values, axis=-1)]
+            hidden = xp.concatenate([xp.broadcast_to(hidden, greedy.shape[:-1] + hidden.shape[-1:]), greedy], -1)
         return values, hidden
 
     def act(self, obs, hidden=None):
         """Greedy actions ``[..., N]`` (int32), the new hidden state and the values."""
         values, hidden = self.values(obs, hidden)
-        return np.argmax(values, axis=-1).astype(np.int32), hidden, values
+        xp = namespace(values)
+        return xp.argmax(values, axis=-1).astype(xp.int32), hidden, values
 
 
 def load_policy(folder) -> NumpyPolicy:

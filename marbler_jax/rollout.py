@@ -31,6 +31,21 @@ def as_stateful(policy) -> StatefulPolicy:
                           step=lambda key, obs, carry, reset: (policy(key, obs), carry))
 
 
+def numpy_policy_greedy(policy) -> StatefulPolicy:
+    """A :class:`marbler_jax.numpy_policy.NumpyPolicy` (an exported or imported policy folder) acting
+    greedily in batched rollouts: its forward pass runs on JAX arrays, its memory is zeroed at each
+    episode's first step."""
+    def initial_carry(batch_shape):
+        return jnp.zeros(tuple(batch_shape) + policy.initial_hidden().shape, jnp.float32)
+
+    def step(key, obs, carry, reset):
+        carry = jnp.where(reset[..., None, None], jnp.zeros_like(carry), carry)
+        actions, carry, _ = policy.act(obs, carry)
+        return actions, carry
+
+    return StatefulPolicy(initial_carry=initial_carry, step=step)
+
+
 def random_actions(env, key, batch_shape=()):
     """Uniform random actions ``[*batch_shape, N]`` int32."""
     return jax.random.randint(key, tuple(batch_shape) + (env.num_agents,), 0, env.num_actions, jnp.int32)

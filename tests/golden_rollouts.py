@@ -28,7 +28,11 @@ class Episode:
 
 
 def load_episodes(scenario_file: str) -> list[Episode]:
-    raw = np.load(golden_path(f"rollouts/{scenario_file}.npz"))
+    return episodes_from(np.load(golden_path(f"rollouts/{scenario_file}.npz")))
+
+
+def episodes_from(raw) -> list[Episode]:
+    """The episodes of a golden-rollout ``.npz`` (or a ``scripts/marbler_oracle.py trace`` file)."""
     meta = json.loads(str(raw["meta"]))
     episodes = []
     for ep in meta["episodes"]:
@@ -169,3 +173,27 @@ SCENARIO_FILES = {
 def initial_state(env, name_file: str, episode: Episode):
     builder = SCENARIO_FILES[name_file][1]
     return base_state(env, np.swapaxes(episode.data["reset_poses"], 0, 1), builder(episode))
+
+
+def assert_matches_marbler(env, out: dict, ep: Episode) -> None:
+    """A replay (:func:`replay_recorded`) equals MARBLER's episode at every step: poses, rewards, observations,
+    dones (1e-9, float64), the violation that ended it, and the episode's prey / material left."""
+    steps = len(out["poses"])
+    assert steps == ep.steps, f"{ep.tag}: episode lasted {steps} steps, MARBLER {ep.steps}"
+    np.testing.assert_allclose(out["poses"], np.swapaxes(ep.data["poses"], -1, -2), atol=1e-9, err_msg=ep.tag)
+    np.testing.assert_allclose(out["rewards"], ep.data["rewards"], atol=1e-9, err_msg=ep.tag)
+    np.testing.assert_allclose(out["obs"], ep.data["obs"], atol=1e-9, err_msg=ep.tag)
+    np.testing.assert_array_equal(out["dones"], ep.data["dones"][:, 0], err_msg=ep.tag)
+    for t, (ours, marbler) in enumerate(zip(out["info"], ep.meta["step_info"])):
+        message = marbler.get("message") or ""
+        if isinstance(marbler.get("remaining"), str):      # Simple reports its violation as "remaining"
+            message = marbler["remaining"]
+        assert bool(ours["violation"]) == (message != ""), f"{ep.tag} step {t}: MARBLER said {message!r}"
+        assert bool(ours["collisions"]) == ("collision" in message), f"{ep.tag} step {t}: {message!r}"
+        assert bool(ours["out_of_bounds"]) == ("boundary" in message), f"{ep.tag} step {t}: {message!r}"
+    remaining = ep.meta["step_info"][-1].get("remaining")
+    if isinstance(remaining, int):  # Prey Left / Material Left
+        key = "prey_left" if "prey_left" in out["info"][-1] else "material_left"
+        assert int(out["info"][-1][key]) == remaining, ep.tag
+    assert np.isclose(float(out["info"][-1]["episode_return"]),
+                      float(env.scenario.team_reward(np.asarray(ep.data["rewards"])).sum()), atol=1e-9)

@@ -108,12 +108,18 @@ def test_numpy_policy_replays_whole_episodes_like_the_jax_policy(tmp_path, last_
     assert finished >= 2
 
 
+def _imports(module: str) -> set[str]:
+    source = Path(__file__).resolve().parents[1] / (module.replace(".", "/") + ".py")
+    return {alias.name for node in ast.walk(ast.parse(source.read_text()))
+            if isinstance(node, (ast.Import, ast.ImportFrom))
+            for alias in (node.names if isinstance(node, ast.Import) else [ast.alias(node.module or "")])}
+
+
 def test_numpy_policy_module_needs_no_jax():
-    source = Path(__file__).resolve().parents[1] / "marbler_jax" / "numpy_policy.py"
-    imported = {alias.name.split(".")[0] for node in ast.walk(ast.parse(source.read_text()))
-                if isinstance(node, (ast.Import, ast.ImportFrom))
-                for alias in (node.names if isinstance(node, ast.Import) else [ast.alias(node.module or "")])}
-    assert imported <= {"__future__", "hashlib", "json", "pathlib", "numpy"}, imported   # stdlib + numpy
+    # stdlib + numpy, and marbler_jax.xp (the array namespace that lets JAX arrays through without importing JAX)
+    assert _imports("marbler_jax.numpy_policy") <= {"__future__", "hashlib", "json", "pathlib", "numpy",
+                                                     "marbler_jax.xp"}
+    assert _imports("marbler_jax.xp") <= {"__future__", "dataclasses", "sys", "typing", "numpy"}
 
 
 def test_bad_policy_folders_are_reported(tmp_path):

@@ -19,8 +19,8 @@ import pytest
 
 import marbler_jax
 from marbler_jax import physics
-from tests.golden_rollouts import (SCENARIO_FILES, golden_env, initial_state, load_episodes, recorded_velocities,
-                                   replay_recorded)
+from tests.golden_rollouts import (SCENARIO_FILES, assert_matches_marbler, golden_env, initial_state, load_episodes,
+                                   recorded_velocities, replay_recorded)
 
 FILES = sorted(SCENARIO_FILES)
 
@@ -32,23 +32,7 @@ def test_replay_of_recorded_commands_matches_marbler(fname):
         for ep in load_episodes(fname):
             env = golden_env(name, ep, control_period=15)
             out = replay_recorded(env, initial_state(env, fname, ep), ep)
-            steps = len(out["poses"])
-            assert steps == ep.steps, f"{ep.tag}: episode lasted {steps} steps, MARBLER {ep.steps}"
-            np.testing.assert_allclose(out["poses"], np.swapaxes(ep.data["poses"], -1, -2), atol=1e-9, err_msg=ep.tag)
-            np.testing.assert_allclose(out["rewards"], ep.data["rewards"], atol=1e-9, err_msg=ep.tag)
-            np.testing.assert_allclose(out["obs"], ep.data["obs"], atol=1e-9, err_msg=ep.tag)
-            np.testing.assert_array_equal(out["dones"], ep.data["dones"][:, 0], err_msg=ep.tag)
-            last_info, marbler_info = out["info"][-1], ep.meta["step_info"][-1]
-            message = marbler_info.get("message") or marbler_info.get("remaining")
-            if message in ("collision", "boundary", "collision_boundary"):
-                assert bool(last_info["violation"])
-                assert bool(last_info["collisions"]) == ("collision" in message), ep.tag
-                assert bool(last_info["out_of_bounds"]) == ("boundary" in message), ep.tag
-            elif isinstance(message, int):  # Prey Left / Material Left
-                key = "prey_left" if "prey_left" in last_info else "material_left"
-                assert int(last_info[key]) == message, ep.tag
-            assert np.isclose(float(last_info["episode_return"]),
-                              float(env.scenario.team_reward(np.asarray(ep.data["rewards"])).sum()), atol=1e-9)
+            assert_matches_marbler(env, out, ep)
 
 
 @pytest.mark.parametrize("fname", FILES)

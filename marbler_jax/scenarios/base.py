@@ -29,6 +29,36 @@ ROBOTARIUM_SETTINGS = {
 """What ``robotarium=`` sets (the physics preset and the barrier); the collision and boundary rules
 are the same in both (rps v2 checks the same offset centres, 0.135 m, and the same arena)."""
 
+PROTOCOLS = {
+    # MARBLER as shipped, where the paper's models trained and its Table II was measured: rps 6bb184e,
+    # controller and barrier every 15 iterations with the command held between, all-zero first observation
+    "marbler": {"robotarium": "2023", "control_period": 15, "zero_reset_obs": True},
+    # the loop a bundle runs on the robots: controller and barrier every iteration (the defaults)
+    "robots": {"control_period": 1},
+}
+"""What ``protocol=`` sets. Settings given beside it must agree with it (a conflict is an error)."""
+
+
+def merge_settings(base: dict, overrides: dict) -> dict:
+    """Env settings ``overrides`` on top of ``base`` (a recipe's, a run's), as one dict for ``make``.
+
+    A ``protocol`` in ``overrides`` replaces every ``base`` setting it decides (``--protocol marbler`` on a
+    recipe that trains in the robots' loop trains in MARBLER's loop). An override of a setting that a
+    ``protocol`` or ``robotarium`` in ``base`` decides turns that name into its settings first, so only the
+    overridden one changes (``control_period=1`` on a MARBLER-protocol run keeps MARBLER's simulator)."""
+    def decided(key, value) -> dict:            # every setting a protocol or robotarium name decides
+        settings = dict({"protocol": PROTOCOLS, "robotarium": ROBOTARIUM_SETTINGS}[key].get(value, {}))
+        return {**settings, **ROBOTARIUM_SETTINGS.get(settings.get("robotarium"), {})}
+
+    base = dict(base)
+    if overrides.get("protocol") in PROTOCOLS:
+        drop = {"protocol", *decided("protocol", overrides["protocol"])}
+        return {**{k: v for k, v in base.items() if k not in drop}, **overrides}
+    for key, table in (("protocol", PROTOCOLS), ("robotarium", ROBOTARIUM_SETTINGS)):
+        if any(name in overrides and overrides[name] != value for name, value in decided(key, base.get(key)).items()):
+            base = {**table[base[key]], **{k: v for k, v in base.items() if k != key}}
+    return {**base, **overrides}
+
 
 @dataclasses.dataclass(frozen=True)
 class ScenarioConfig:
@@ -72,6 +102,10 @@ class ScenarioConfig:
             benchmark's recipes train with.
         zero_reset_obs: return all-zero observations from ``reset`` as MARBLER does (a bug kept
             only as a switch for reproducing the paper; default False returns the real observation).
+        protocol: ``"marbler"`` sets every setting in which MARBLER's shipped code differs from the
+            defaults (:data:`PROTOCOLS`: its simulator, its 15-iteration loop, its zero first observation),
+            the protocol of the paper's Table II; ``"robots"`` is the robots' loop; ``None`` (default)
+            leaves each setting to its own field.
         x_min: smallest waypoint x [m] (MARBLER's ``LEFT``); also where the left spawn bands start.
         x_max: largest waypoint x [m] (``RIGHT``); also where the right spawn bands end.
         y_min: smallest waypoint y [m] (``UP``).
@@ -90,6 +124,7 @@ class ScenarioConfig:
     physics: str = "robotarium"
     robotarium: str | None = None
     zero_reset_obs: bool = False
+    protocol: str | None = None
     x_min: float = -1.4
     x_max: float = 1.4
     y_min: float = -0.9
@@ -119,6 +154,13 @@ class ScenarioConfig:
             raise ValueError(f"cbf_relaxation={self.cbf_relaxation!r} must lie in (0, 2) (over-relaxation of the barrier sweeps)")
         from marbler_jax import physics
 
+        if self.protocol is not None:
+            if self.protocol not in PROTOCOLS:
+                raise ValueError(f"protocol={self.protocol!r} is not one of {list(PROTOCOLS)} (or None)")
+            for name, value in PROTOCOLS[self.protocol].items():
+                if getattr(self, name) != value:
+                    raise ValueError(f"protocol={self.protocol!r} uses {name}={value!r}, "
+                                     f"but {name}={getattr(self, name)!r} was given; drop one of the two")
         if self.robotarium is not None:
             if self.robotarium not in ROBOTARIUM_SETTINGS:
                 raise ValueError(f"robotarium={self.robotarium!r} is not one of {list(ROBOTARIUM_SETTINGS)} (or None)")
@@ -243,6 +285,8 @@ def build_config(config_cls: type[ScenarioConfig], overrides: dict[str, Any]) ->
     clean = {}
     for name, value in overrides.items():
         clean[name] = _coerce(name, value, hints[name])
+    if clean.get("protocol") in PROTOCOLS:                  # the protocol's settings, unless given explicitly
+        clean = {**PROTOCOLS[clean["protocol"]], **clean}
     if clean.get("robotarium") in ROBOTARIUM_SETTINGS:      # the simulator's settings, unless given explicitly
         clean = {**ROBOTARIUM_SETTINGS[clean["robotarium"]], **clean}
     config = config_cls(**clean)

@@ -16,7 +16,8 @@ zones are empty and nobody carries anything.
 
 Observation: ``[x, y, load, zone1 left, zone2 left, message of agent 0 .. N-1]``
 (+ ``[capacity, step]`` with ``capability_aware``). Loads and zone counts are those before this
-step's loading/unloading (MARBLER builds observations before applying them); messages are this step's.
+step's loading/unloading (MARBLER builds observations before applying them); messages are this step's,
+also on a step that a violation ends (MARBLER sets them before it checks for one).
 
 Deviations (bug fixes): the message block has one entry per agent (MARBLER hard-codes 4, which breaks
 any other team size); ``reset`` returns the real first observation (``zero_reset_obs=True`` restores

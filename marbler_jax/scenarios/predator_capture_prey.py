@@ -14,8 +14,8 @@ is captured.
 
 Observation of agent i: its local vector ``[x, y, px, py]`` (+ ``[sensing radius, capture radius]``
 with ``capability_aware``) where (px, py) is the closest uncaptured prey within *its own* sensing
-radius, or (-5, -5) -- captured as of the start of the step, since MARBLER builds observations
-before applying the step's events; followed by the local vectors of ``num_neighbors`` other agents (all others in
+radius, or (-5, -5) -- captured as of the end of the step: MARBLER applies the step's sensing and
+captures before it builds the observation (``PredatorCapturePrey.step``); followed by the local vectors of ``num_neighbors`` other agents (all others in
 index order when ``num_neighbors >= N - 1``, as MARBLER's configs use; otherwise the nearest ones,
 nearest first -- MARBLER leaves their order unspecified).
 
@@ -168,9 +168,6 @@ class PredatorCapturePrey(Scenario):
         others = nearest_others(poses, self.neighbors)  # [N, k]
         neighbor_vecs = local[others].reshape(self.num_agents, -1)
         return xp.concatenate([local, neighbor_vecs], axis=-1)
-
-    def observation_state(self, before, after):
-        return before  # MARBLER observes before applying the step's sensing/capture events
 
     def render_layers(self, state):
         import numpy as np

@@ -1,0 +1,223 @@
+"""MARBLER's paper models (its Table II) in marbler-jax and in MARBLER's own code, side by side.
+
+The 16 EPyMARL models that MARBLER ships (MAPPO, QMIX, QMIX_NS, VDN on Predator Capture Prey, Warehouse,
+Material Transport and Arctic Transport) are imported with ``marbler-jax import`` and evaluated
+
+(a) in marbler-jax's ``marbler`` protocol (MARBLER's simulator, loop and first observation),
+(b) in MARBLER's own code (``scripts/marbler_oracle.py``, run by a Python with MARBLER's stack),
+(c) -- the paper's Table II value --,
+(d) in marbler-jax's robots' loop (controller and barrier every iteration, what a bundle runs),
+
+each over ``--episodes`` episodes, and written as one JSON file per model and loop under ``--out``;
+``table`` turns them into the Markdown table that RESULTS.md holds. Steps (each skips what is done):
+
+    python scripts/paper_models.py import                       # policies/ from ../shared/marbler
+    python scripts/paper_models.py marbler --python .marbler-venv/bin/python   # (b), ~1 episode/s
+    python scripts/paper_models.py evaluate                     # (a) and (d)
+    python scripts/paper_models.py table --results-md RESULTS.md
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+MODELS = REPO.parent / "shared" / "marbler" / "robotarium_gym" / "scenarios"
+SCENARIOS = {"predator_capture_prey": "PredatorCapturePrey", "warehouse": "Warehouse",
+             "material_transport": "MaterialTransport", "arctic_transport": "ArcticTransport"}
+ALGOS = ("mappo", "qmix", "qmix_ns", "vdn")
+OUT = REPO / "results" / "paper-models"
+
+
+def models():
+    """``(scenario, algo, model .th, config .json)`` of the paper's 16 models."""
+    for scenario, folder in SCENARIOS.items():
+        for algo in ALGOS:
+            yield scenario, algo, MODELS / folder / "models" / f"{algo}.th", MODELS / folder / "models" / f"{algo}.json"
+
+
+def policy_dir(out: Path, scenario: str, algo: str) -> Path:
+    return out / "policies" / f"{scenario}-{algo}"
+
+
+def _import(args) -> None:
+    sys.path.insert(0, str(REPO))
+    from marbler_jax_rl.epymarl import import_model
+
+    if not MODELS.is_dir():
+        raise SystemExit(f"MARBLER's models are not at {MODELS}")
+    for scenario, algo, model, config in models():
+        spec = import_model(model, config, scenario, policy_dir(args.out, scenario, algo), force=True)
+        print(f"imported {model.relative_to(MODELS)} -> {policy_dir(args.out, scenario, algo)} ({spec['algo']})")
+
+
+def _marbler(args) -> None:
+    """(b): every model in MARBLER's own code, one process per model (``--workers`` at a time), skipping
+    finished files."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    def run(item):
+        scenario, algo = item
+        target = args.out / "marbler" / f"{scenario}-{algo}.json"
+        tmp = target.with_suffix(".json.part")
+        subprocess.run([args.python, str(REPO / "scripts" / "marbler_oracle.py"), "evaluate", "--scenario",
+                        SCENARIOS[scenario], "--policy", str(policy_dir(args.out, scenario, algo)),
+                        "--episodes", str(args.episodes), "--seed", str(args.seed), "--out", str(tmp)],
+                       check=True, stderr=subprocess.DEVNULL)
+        tmp.rename(target)
+
+    (args.out / "marbler").mkdir(parents=True, exist_ok=True)
+    todo = [(scenario, algo) for scenario, algo, _, _ in models()
+            if not (args.out / "marbler" / f"{scenario}-{algo}.json").exists()]
+    with ThreadPoolExecutor(args.workers) as pool:
+        list(pool.map(run, todo))
+
+
+def _evaluate(args) -> None:
+    """(a) and (d): every model in marbler-jax, in MARBLER's protocol and in the robots' loop."""
+    sys.path.insert(0, str(REPO))
+    from marbler_jax_rl.evaluate import evaluate_policy
+
+    loops = {"marbler-jax": {"protocol": "marbler"}, "robots-loop": {"protocol": "robots"}}
+    for scenario, algo, _, _ in models():
+        for loop, env in loops.items():
+            target = args.out / loop / f"{scenario}-{algo}.json"
+            if target.exists():
+                continue
+            target.parent.mkdir(parents=True, exist_ok=True)
+            start = time.perf_counter()
+            result = evaluate_policy(policy_dir(args.out, scenario, algo), args.episodes, seed=args.seed,
+                                     env_overrides=env, per_episode=True)
+            result["seconds"] = round(time.perf_counter() - start, 1)
+            target.write_text(json.dumps(result))
+            print(f"{loop} {scenario} {algo}: reward {result['pooled']['reward']['mean']:.2f} "
+                  f"({result['seconds']:.0f} s)")
+
+
+LOOPS = {"marbler-jax": "(a) marbler-jax, MARBLER's protocol", "marbler": "(b) MARBLER's code",
+         "robots-loop": "(d) marbler-jax, robots' loop"}
+LEFT = {"predator_capture_prey": "prey_left", "material_transport": "material_left"}
+
+
+def _episodes(out: Path, loop: str, scenario: str, algo: str) -> dict | None:
+    path = out / loop / f"{scenario}-{algo}.json"
+    return json.loads(path.read_text())["episodes_metrics"] if path.exists() else None
+
+
+def mean_ci(values) -> tuple[float, float]:
+    """Mean and the half-width of its 95 % confidence interval (normal approximation, n >= 100)."""
+    values = np.asarray(values, float)
+    return float(values.mean()), float(1.96 * values.std(ddof=1) / np.sqrt(len(values)))
+
+
+def difference_ci(a, b) -> tuple[float, float, float]:
+    """``mean(a) - mean(b)`` with its 95 % CI (Welch, normal approximation)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    diff = a.mean() - b.mean()
+    half = 1.96 * np.sqrt(a.var(ddof=1) / len(a) + b.var(ddof=1) / len(b))
+    return float(diff), float(diff - half), float(diff + half)
+
+
+def _cell(values, digits: int = 2) -> str:
+    if values is None:
+        return "—"
+    mean, half = mean_ci(values)
+    return f"{mean:.{digits}f} ± {half:.{digits}f}"
+
+
+def table_markdown(out: Path) -> str:
+    """RESULTS.md's section on the paper's models: reward and task metrics in the four loops."""
+    sys.path.insert(0, str(REPO))
+    from marbler_jax_rl.evaluate import PAPER
+
+    counts = {}                                     # episodes per model in each loop
+    for loop in LOOPS:
+        found = [e for s, a, _, _ in models() if (e := _episodes(out, loop, s, a))]
+        if found:
+            counts[loop] = len(found[0]["reward"])
+    lines = [
+        "## The paper's own models",
+        "",
+        "MARBLER ships the 16 models of its Table II (EPyMARL GRU agents). `marbler-jax import` converts each into a "
+        "numpy policy (its forward pass equals MARBLER's torch agents: `tests/test_epymarl.py`), which then runs "
+        "(a) in marbler-jax's `marbler` protocol, (b) in MARBLER's own code at the paper's commit "
+        "(`scripts/marbler_oracle.py`), and (d) in marbler-jax's robots' loop; (c) is the paper's Table II "
+        "(100 episodes of the best seed's model). Mean ± 95 % CI half-width over "
+        + ", ".join(f"{n} episodes for {LOOPS[loop][:3]}" for loop, n in counts.items())
+        + "; *agree*: the 95 % CI of (a) − (b) contains 0. Made with:",
+        "",
+        "```bash",
+        "python scripts/paper_models.py import && python scripts/paper_models.py evaluate",
+        "python scripts/paper_models.py marbler --python .marbler-venv/bin/python --workers 2",
+        "python scripts/paper_models.py table --results-md RESULTS.md",
+        "```",
+        "",
+        "### Reward",
+        "",
+        "| scenario | algorithm | (a) marbler-jax, MARBLER's protocol | (b) MARBLER's code | (a) − (b) [95 % CI] "
+        "| agree | (c) paper | (d) robots' loop |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    agree = []
+    for scenario, algo, _, _ in models():
+        a, b, d = (_episodes(out, loop, scenario, algo) for loop in ("marbler-jax", "marbler", "robots-loop"))
+        paper = PAPER.get(scenario, {}).get(algo, {}).get("reward")
+        diff, verdict = "—", "—"
+        if a is not None and b is not None:
+            mean, low, high = difference_ci(a["reward"], b["reward"])
+            diff, ok = f"{mean:+.2f} [{low:+.2f}, {high:+.2f}]", low <= 0 <= high
+            verdict = "yes" if ok else "**no**"
+            agree.append(ok)
+        lines.append(f"| {scenario} | {algo} | {_cell(a and a['reward'])} | {_cell(b and b['reward'])} | {diff} | "
+                     f"{verdict} | {f'{paper[0]:g} ± {paper[1]:g}' if paper else '—'} | {_cell(d and d['reward'])} |")
+    lines += ["", f"(a) and (b) agree on {sum(agree)} of {len(agree)} models.", "",
+              "### Task metrics: (a) marbler-jax, MARBLER's protocol / (b) MARBLER's code", "",
+              "| scenario | algorithm | steps | prey / material left | collisions % | out of bounds % |",
+              "|---|---|---|---|---|---|"]
+    for scenario, algo, _, _ in models():
+        a, b = (_episodes(out, loop, scenario, algo) for loop in ("marbler-jax", "marbler"))
+        cells = []
+        for metric in ("steps", LEFT.get(scenario), "collisions", "out_of_bounds"):
+            if metric is None:
+                cells.append("—")
+                continue
+            digits = 1 if metric in ("collisions", "out_of_bounds", "steps") else 2
+            cells.append(f"{_cell(a and a[metric], digits)} / {_cell(b and b[metric], digits)}")
+        lines.append(f"| {scenario} | {algo} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _table(args) -> None:
+    text = table_markdown(args.out)
+    (args.out / "table.md").write_text(text)
+    if args.results_md:
+        sys.path.insert(0, str(REPO))
+        from marbler_jax_rl.report import replace_block
+
+        page = Path(args.results_md)
+        page.write_text(replace_block(page.read_text(), "paper-models", "scripts/paper_models.py table", text))
+    print(text)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("command", choices=["import", "marbler", "evaluate", "table"])
+    parser.add_argument("--out", type=Path, default=OUT)
+    parser.add_argument("--episodes", type=int, default=500)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--workers", type=int, default=1, help="MARBLER processes at a time (for `marbler`)")
+    parser.add_argument("--python", default=str(REPO / ".marbler-venv" / "bin" / "python"),
+                        help="a Python with MARBLER's stack (for `marbler`)")
+    args = parser.parse_args(argv)
+    parser.add_argument("--results-md", default=None, help="page whose paper-models block `table` rewrites")
+    {"import": _import, "marbler": _marbler, "evaluate": _evaluate, "table": _table}[args.command](args)
+
+
+if __name__ == "__main__":
+    main()

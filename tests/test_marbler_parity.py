@@ -1,0 +1,96 @@
+"""Parity with MARBLER's own code, step by step, in the ``marbler`` protocol.
+
+MARBLER's code (``../shared/marbler``, run by ``scripts/marbler_oracle.py`` in a venv of its own without JAX)
+plays whole episodes with random actions and with a paper model (imported with ``marbler-jax import``), and
+records every simulator tick. marbler-jax then replays each episode from the same initial state with the same
+actions, MARBLER's commands at each control refresh (MARBLER's barrier QP is solved loosely by cvxopt, so the
+commands, not the barrier, are shared), and must give the same poses, observations, rewards, dones and
+violations at every step (float64, 1e-9). The default suite plays a few episodes per scenario; the ``slow``
+version plays 100 (half random, half the model). Skips where ``../shared/marbler`` is absent.
+"""
+from __future__ import annotations
+
+import fcntl
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+import marbler_jax
+from marbler_jax_rl.epymarl import import_model
+from tests.golden_rollouts import SCENARIO_FILES, assert_matches_marbler, episodes_from, initial_state, replay_recorded
+
+REPO = Path(__file__).resolve().parents[1]
+MARBLER = REPO.parent / "shared" / "marbler"
+MODELS = MARBLER / "robotarium_gym" / "scenarios"
+VENV = REPO / ".marbler-venv"
+# MARBLER's stack, as ../shared/marbler/MARBLER-README-for-tests.md gives it (the oracle puts MARBLER on the path)
+PACKAGES = ["numpy==1.24.4", "cvxopt", "scipy", "matplotlib<3.9", "pyyaml", "imageio", "gym==0.26.2",
+            "robotarium-python-simulator"]
+MODEL = {"Simple": "qmix", "PredatorCapturePrey": "vdn", "Warehouse": "vdn", "MaterialTransport": "vdn",
+         "ArcticTransport": "vdn"}
+
+
+def marbler_python() -> Path:
+    """Python of a venv with MARBLER's stack and without JAX (made once, shared by the xdist workers)."""
+    if not MARBLER.is_dir():
+        pytest.skip(f"MARBLER's code is not at {MARBLER}")
+    if os.environ.get("MARBLER_JAX_SKIP_RPS") == "1":
+        pytest.skip("MARBLER_JAX_SKIP_RPS=1")
+    python = VENV / "bin" / "python"
+    probe = "import rps.robotarium, gym, cvxopt, yaml, numpy; assert numpy.__version__ == '1.24.4'"
+    with open(REPO / ".marbler-venv.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (python.exists() and subprocess.run([python, "-c", probe], capture_output=True).returncode == 0):
+            subprocess.run([sys.executable, "-m", "venv", "--clear", str(VENV)], check=True)
+            subprocess.run([python, "-m", "pip", "install", "-q", "--no-compile", "--disable-pip-version-check",
+                            *PACKAGES], check=True, timeout=900)
+    assert subprocess.run([python, "-c", "import jax"], capture_output=True).returncode != 0, "MARBLER venv has JAX"
+    return python
+
+
+def trace(python: Path, scenario: str, episodes: int, seed: int, out: Path, policy: Path | None = None) -> list:
+    command = [python, REPO / "scripts" / "marbler_oracle.py", "trace", "--scenario", scenario, "--episodes",
+               str(episodes), "--seed", str(seed), "--out", out]
+    if policy is not None:
+        command += ["--policy", policy]
+    result = subprocess.run([str(c) for c in command], capture_output=True, text=True, timeout=1800,
+                            env=dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1"))
+    assert result.returncode == 0, result.stderr[-3000:]
+    return episodes_from(np.load(out))
+
+
+def check_scenario(fname: str, episodes: int, tmp_path: Path) -> int:
+    """``episodes`` random and ``episodes`` model episodes of MARBLER's ``fname``, replayed; returns the
+    number of steps compared."""
+    python = marbler_python()
+    name = SCENARIO_FILES[fname][0]
+    model = MODELS / fname / "models" / MODEL[fname]
+    policy = tmp_path / "policy"
+    import_model(model.with_suffix(".th"), model.with_suffix(".json"), name, policy)
+    played = (trace(python, fname, episodes, 7, tmp_path / "random.npz")
+              + trace(python, fname, episodes, 8, tmp_path / "model.npz", policy))
+    compared = 0
+    with jax.enable_x64(True):
+        env = marbler_jax.make(name, protocol="marbler")
+        for ep in played:
+            out = replay_recorded(env, initial_state(env, fname, ep), ep)
+            assert_matches_marbler(env, out, ep)
+            compared += ep.steps
+    return compared
+
+
+@pytest.mark.parametrize("fname", sorted(SCENARIO_FILES))
+def test_marbler_and_marbler_jax_agree_step_by_step(fname, tmp_path):
+    assert check_scenario(fname, 3, tmp_path) > 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fname", sorted(SCENARIO_FILES))
+def test_marbler_and_marbler_jax_agree_over_100_episodes(fname, tmp_path):
+    steps = check_scenario(fname, 50, tmp_path)
+    print(f"{fname}: 100 episodes, {steps} steps identical")
