@@ -301,12 +301,30 @@ def cell_runs(run: Path, env, greedy_of_params, seeds: int, absolute_episodes: i
     return runs
 
 
+POLICIES = "policies"
+"""The folder of a benchmark's published policies: each cell's best seed as ``<scenario>-<algo>/``."""
+
+
+def publish_policy(run: Path, target: Path) -> dict:
+    """Export the best seed of run folder ``run`` (:meth:`Run.best_seed`, the model the paper's protocol
+    reports) from its best checkpoint as the numpy policy folder ``target``, so the table's policies can be
+    evaluated, rendered and deployed without retraining; returns the policy spec."""
+    from .export import export_policy
+    from .run import Run
+
+    index = Run.open(run).best_seed()[0]
+    return export_policy(run, target, seed_index=index, force=True)
+
+
 def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS, seeds: int = 5,
                   total_steps: int | None = None, eval_points: int = 20, test_episodes: int = 64,
                   absolute_factor: int = 10, devices: int = 1, seed: int = 0, progress: bool = True,
                   process_index: int = 0, process_count: int = 1, recipes=None, log=print, on_chunk=None,
-                  env_overrides: dict | None = None, hp_overrides: dict | None = None) -> dict:
+                  env_overrides: dict | None = None, hp_overrides: dict | None = None, force: bool = False) -> dict:
     """Train and evaluate this process's share of the grid into ``out``; returns its results dict.
+    A finished cell of the results file made with other settings is replaced only with ``force`` (a
+    smoke run with ``--total-steps`` belongs in a folder of its own): without, nothing trains and a
+    ``ValueError`` names the cells.
     ``devices > 1`` spreads each cell over that many devices (on a CPU, ask for them with
     :func:`marbler_jax_rl.data_parallel.use_cpu_devices` first) through the algorithm's
     ``learner_devices``: value-based algorithms split each gradient step, PPO algorithms each rollout's
@@ -323,10 +341,14 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
     plans = plan_cells(out, algos, scenarios, seeds, total_steps, test_episodes, seed, process_index, process_count,
                        recipes, env_overrides, hp_overrides)
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     path = out / results_name(process_index, process_count)
     todo = [plan for plan in plans if plan.status != "done"]
     redo = sum(plan.replaces for plan in todo)
+    if redo and not force:
+        cells = ", ".join(f"{plan.scenario}/{plan.algo}" for plan in todo if plan.replaces)
+        raise ValueError(f"{path} holds {cells} made with other settings; this run would replace "
+                         f"{'it' if redo == 1 else 'them'}: give another --out (e.g. for a smoke run), or --force")
+    out.mkdir(parents=True, exist_ok=True)
     log(f"benchmark: {len(plans)} cell(s) for this process, {len(plans) - len(todo)} already in {path}"
         + (f"; {redo} of its cells were made with other settings and train again" if redo else ""))
     spent_steps, spent_seconds = 0, 0.0
@@ -364,6 +386,7 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
             entry[ABSOLUTE]["wall_seconds"] = [round(seconds, 1)]
             entry[ABSOLUTE]["device"] = [clock.device()]
         results = add_cell(path, scenario, algo, runs)
+        publish_policy(run, out / POLICIES / f"{scenario}-{algo}")
         spent_steps += steps * seeds
         spent_seconds += seconds
         best = max(runs.values(), key=lambda r: r[ABSOLUTE]["best_test_return"][0])[ABSOLUTE]["reward"]
@@ -372,6 +395,6 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
     return results
 
 
-__all__ = ["run_benchmark", "plan_cells", "describe_plan", "CellPlan", "CELL_STATUSES", "load_results", "add_cell",
+__all__ = ["run_benchmark", "publish_policy", "POLICIES", "plan_cells", "describe_plan", "CellPlan", "CELL_STATUSES", "load_results", "add_cell",
            "finished_cells", "grid", "results_name", "PAPER_ALGOS", "PAPER_SCENARIOS", "JAXROBOTARIUM_SCENARIOS",
            "ENV_NAME"]

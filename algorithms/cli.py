@@ -261,7 +261,7 @@ def _benchmark(args) -> int:
     run_benchmark(args.out, args.algos, args.scenarios, args.seeds, args.total_steps, args.eval_points,
                   args.test_episodes, args.absolute_factor, args.devices, args.seed, progress=not args.no_progress,
                   process_index=shard[0], process_count=shard[1], env_overrides=env_overrides,
-                  hp_overrides=hp_overrides)
+                  hp_overrides=hp_overrides, force=args.force)
     print(f"results: {args.out}; tables and curves: marbler-jax report {args.out}")
     return 0
 
@@ -339,6 +339,11 @@ _MEMORY_NAMES = {"gru": "GRU", "mingru": "minimal GRU", "none": "feed-forward"}
 def _export(args) -> int:
     from .export import export_policy
 
+    if (Path(args.run) / "policy_spec.npy").exists():
+        return _bundle_policy_folder(args)
+    if args.out is None:
+        raise ValueError("--out is required to export a run (the policy folder to write)")
+
     spec = export_policy(args.run, args.out, seed_index=args.seed_index, checkpoint=args.checkpoint,
                          bundle=args.bundle, episodes=args.episodes, bundle_seed=args.bundle_seed,
                          control_period=None if args.control_period == "train" else args.control_period,
@@ -356,6 +361,24 @@ def _export(args) -> int:
         _print_bundle(Path(args.bundle))
         period = "the training period" if args.control_period == "train" else f"every {args.control_period} iteration(s)"
         print(f"the bundle recomputes controller and barrier {period} and clips commands to the motor limits")
+    return 0
+
+
+def _bundle_policy_folder(args) -> int:
+    """``export POLICY --bundle B``: a policy folder (exported or imported) as a Robotarium bundle."""
+    from .evaluate import open_policy
+    from marbler_jax.deploy.bundle import write_bundle
+
+    if args.bundle is None:
+        raise ValueError(f"{args.run} is already a policy folder: give --bundle B to write its Robotarium bundle")
+    if args.out is not None:
+        raise ValueError(f"{args.run} is already a policy folder: drop --out (or export a run folder)")
+    overrides = {} if args.control_period == "train" else {"control_period": args.control_period}
+    env, policy = open_policy(args.run, overrides)
+    spec = policy.spec
+    write_bundle(env, args.run, args.bundle, spec.get("algo", "policy"), episodes=args.episodes, seed=args.bundle_seed,
+                 force=args.force)
+    _print_bundle(Path(args.bundle))
     return 0
 
 
@@ -425,21 +448,14 @@ def _import(args) -> int:
           f"{'shared' if spec['shared'] else 'per-robot'} parameters) for {spec['scenario']} to {args.out}")
     print(f"evaluate it: marbler-jax evaluate {args.out} (protocol {args.protocol}; --protocol robots for the "
           "robots' loop)")
-    if args.bundle is not None:
-        import marbler_jax
+    if args.bundle is not None:                  # the robots' loop: controller and barrier every iteration
+        from .evaluate import open_policy
+        from marbler_jax.control_loop import ROBOTS_CONTROL_PERIOD
 
-        env = marbler_jax.make(spec["scenario"], **merge_robots_loop(spec["env"]))
+        env, _ = open_policy(args.out, {"control_period": ROBOTS_CONTROL_PERIOD})
         write_bundle(env, args.out, args.bundle, spec["algo"], episodes=args.episodes, force=args.force)
         _print_bundle(Path(args.bundle))
     return 0
-
-
-def merge_robots_loop(settings: dict) -> dict:
-    """``settings`` with controller and barrier every iteration, as a bundle runs on the robots."""
-    from marbler_jax.control_loop import ROBOTS_CONTROL_PERIOD
-    from marbler_jax.scenarios.base import merge_settings
-
-    return merge_settings(settings, {"control_period": ROBOTS_CONTROL_PERIOD})
 
 
 def _quickstart(args) -> int:
@@ -503,11 +519,21 @@ def _render(args) -> int:
             raise ValueError("--set applies to a scenario name; a run renders with the settings it was trained with")
         env, policy = load_run(target, seed_index=args.seed_index, checkpoint=args.checkpoint)
         what = f"greedy policy of {target} ({args.checkpoint} parameters, seed {args.seed_index})"
+    elif (target / "policy_spec.npy").exists():
+        from .evaluate import open_policy
+        from marbler_jax.rollout import numpy_policy_greedy
+
+        if args.set:
+            raise ValueError("--set applies to a scenario name; a policy folder renders with the settings it records")
+        env, numpy_policy = open_policy(target)
+        policy = numpy_policy_greedy(numpy_policy)
+        what = f"greedy policy in {target}"
     elif args.target in marbler_jax.registered():
         env, policy = marbler_jax.make(args.target, **parse_overrides(args.set)), None
         what = "random actions"
     else:
-        raise ValueError(f"{args.target!r} is neither a run folder (no config.json) nor a scenario; scenarios: "
+        raise ValueError(f"{args.target!r} is neither a run folder (no config.json), a policy folder (no "
+                         f"policy_spec.npy) nor a scenario; scenarios: "
                          f"{sorted(marbler_jax.registered())}")
     frames = episode_frames(env, policy, jax.random.PRNGKey(args.seed), args.envs, progress=not args.no_progress)
     save_movie(frames, args.out, fps=args.fps)
@@ -632,8 +658,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--no-progress", action="store_true")
     ev.set_defaults(func=_evaluate)
     ex = sub.add_parser("export", help="write a run's policy as numpy .npy files (runs without JAX)")
-    ex.add_argument("run", help="run folder written by `marbler-jax train`")
-    ex.add_argument("--out", required=True, help="policy folder to write (flat, .npy files only)")
+    ex.add_argument("run", help="run folder written by `marbler-jax train`, or a policy folder (then only --bundle)")
+    ex.add_argument("--out", default=None, help="policy folder to write (flat, .npy files only); required for a run")
     ex.add_argument("--checkpoint", default=DEFAULT_CHECKPOINT, choices=CHECKPOINTS, help=CHECKPOINT_HELP)
     ex.add_argument("--seed-index", type=int, default=0, help="which of the run's seeds to export")
     ex.add_argument("--bundle", default=None,
@@ -647,7 +673,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="replace --out / --bundle folders even if they hold files export did not write")
     ex.set_defaults(func=_export)
     rd = sub.add_parser("render", help="GIF/MP4 of a run's greedy policy, or of a scenario with random actions")
-    rd.add_argument("target", help="run folder (greedy policy) or scenario name (random actions)")
+    rd.add_argument("target", help="run folder or policy folder (greedy policy), or scenario name (random actions)")
     rd.add_argument("--out", required=True, help="movie file: .gif, or .mp4 with imageio-ffmpeg installed")
     rd.add_argument("--envs", type=int, default=1, help="episodes side by side in a grid (vmapped envs)")
     rd.add_argument("--checkpoint", default=DEFAULT_CHECKPOINT, choices=CHECKPOINTS, help=CHECKPOINT_HELP)
@@ -665,6 +691,8 @@ def build_parser() -> argparse.ArgumentParser:
     bm.add_argument("--out", default=None, help="results folder (results.json, runs/); default: "
                     "results/marbler-table2, with --protocol marbler results/marbler-table2-protocol")
     bm.add_argument("--protocol", choices=list(PROTOCOLS), default=None, help=PROTOCOL_HELP)
+    bm.add_argument("--force", action="store_true",
+                    help="replace finished cells of the results file that were made with other settings")
     bm.add_argument("--total-steps", type=env_steps, default=None,
                     help="env steps per seed for every cell (default: each recipe's)")
     bm.add_argument("--set", action="append", metavar="KEY=VALUE",

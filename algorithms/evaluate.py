@@ -123,32 +123,42 @@ def evaluate_run(run, episodes: int = 100, checkpoint: str = DEFAULT_CHECKPOINT,
     return result
 
 
-def evaluate_policy(folder, episodes: int = 100, seed: int = 0, env_overrides: dict | None = None,
-                    per_episode: bool = False) -> dict:
-    """Table II metrics of the numpy policy folder ``folder`` (exported, or imported with ``marbler-jax
-    import``), acting greedily in ``episodes`` batched episodes of its scenario with the env settings its
-    spec records (``env``) and ``env_overrides`` on top (e.g. ``{"protocol": "robots"}``). The policy's
-    forward pass runs in JAX; ``per_episode`` keeps every episode's metrics (``episodes_metrics``)."""
+def open_policy(folder, env_overrides: dict | None = None):
+    """``(env, policy)`` of the numpy policy folder ``folder`` (exported, or imported with ``marbler-jax
+    import``): its scenario with the env settings its spec records (``env``) and ``env_overrides`` on top
+    (e.g. ``{"protocol": "robots"}``), checked to fit the policy."""
     import marbler_jax
     from marbler_jax.numpy_policy import load_policy
-    from marbler_jax.rollout import numpy_policy_greedy
+    from marbler_jax.scenarios.base import merge_settings
 
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-        raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
     policy = load_policy(folder)
     spec = policy.spec
     if "scenario" not in spec:
         raise ValueError(f"the policy in {folder} names no scenario in its spec")
-    settings = {**spec.get("env", {}), **(env_overrides or {})}
+    settings = merge_settings(spec.get("env", {}), env_overrides or {})
     env = marbler_jax.make(spec["scenario"], **settings)
     if (env.num_agents, env.obs_dim, env.num_actions) != (policy.num_agents, policy.obs_dim, spec["num_actions"]):
         raise ValueError(f"the policy in {folder} is for {policy.num_agents} robots with {policy.obs_dim} observation "
                          f"features and {spec['num_actions']} actions; {env.name} with {settings} has "
                          f"{env.num_agents}, {env.obs_dim} and {env.num_actions}")
+    return env, policy
+
+
+def evaluate_policy(folder, episodes: int = 100, seed: int = 0, env_overrides: dict | None = None,
+                    per_episode: bool = False) -> dict:
+    """Table II metrics of the numpy policy folder ``folder`` acting greedily in ``episodes`` batched
+    episodes (env as :func:`open_policy` builds it). The policy's forward pass runs in JAX;
+    ``per_episode`` keeps every episode's metrics (``episodes_metrics``)."""
+    from marbler_jax.rollout import numpy_policy_greedy
+
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
+    env, policy = open_policy(folder, env_overrides)
     values = greedy_episodes(env, numpy_policy_greedy(policy), episodes, jax.random.PRNGKey(seed))
-    result = dict(scenario=env.name, algo=spec.get("algo"), policy=str(folder), env=settings, episodes=episodes,
-                  seed=seed, control_period=env.config.control_period, pooled=summarize(values),
-                  paper=PAPER.get(env.name, {}).get(spec.get("algo")))
+    result = dict(scenario=env.name, algo=policy.spec.get("algo"), policy=str(folder), env=policy.spec.get("env", {}),
+                  env_overrides=env_overrides or {}, episodes=episodes, seed=seed,
+                  control_period=env.config.control_period, protocol=env.config.protocol, pooled=summarize(values),
+                  paper=PAPER.get(env.name, {}).get(policy.spec.get("algo")))
     if per_episode:
         result["episodes_metrics"] = {k: v.tolist() for k, v in values.items()}
     return result
@@ -185,4 +195,4 @@ def markdown_table(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["evaluate_run", "evaluate_policy", "markdown_table", "greedy_episodes", "first_episodes", "PAPER"]
+__all__ = ["evaluate_run", "evaluate_policy", "open_policy", "markdown_table", "greedy_episodes", "first_episodes", "PAPER"]

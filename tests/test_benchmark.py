@@ -315,6 +315,17 @@ def test_tiny_benchmark_writes_resumes_and_reports(tmp_path):
     assert runs["run_0"][ABSOLUTE]["device"] == [jax.devices()[0].device_kind]     # "cpu" here
     # not the recipe's settings (the report's files and curves: test_report_renders_tables_curves_and_improvement)
     assert "| simple_navigation | mappo† | 2 |" in report.report_markdown(results, reps=20)
+    # each finished cell publishes its best seed's policy, which evaluate takes without the run folder
+    from marbler_jax.numpy_policy import load_policy
+    from marbler_jax_rl.evaluate import evaluate_policy
+    from marbler_jax_rl.run import Run
+
+    for algo in ("ippo", "mappo"):
+        spec = load_policy(out / "policies" / f"simple_navigation-{algo}").spec
+        assert spec["seed_index"] == Run.open(out / "runs" / "simple_navigation" / algo).best_seed()[0]
+        assert spec["checkpoint"] == "best" and spec["algo"] == algo
+    evaluated = evaluate_policy(out / "policies" / "simple_navigation-mappo", 4)
+    assert (evaluated["scenario"], evaluated["algo"], evaluated["episodes"]) == ("simple_navigation", "mappo", 4)
     logs.clear()
     run_benchmark(out, **kwargs)                       # all done: nothing trains
     assert logs == [f"benchmark: 2 cell(s) for this process, 2 already in {out / 'results.json'}"]
@@ -324,8 +335,12 @@ def test_tiny_benchmark_writes_resumes_and_reports(tmp_path):
     plans = benchmark.plan_cells(out, **dict(plan_args, algos=["ippo"], total_steps=2 * 1024))
     assert [(p.status, p.replaces, p.updates) for p in plans] == [("restart", True, 2)]
     assert (out / "runs" / "simple_navigation" / "ippo").exists()          # planning moves nothing
-    again = run_benchmark(out, **dict(kwargs, algos=["ippo"], total_steps=2 * 1024, eval_points=2))
     run = out / "runs" / "simple_navigation" / "ippo"
+    with pytest.raises(ValueError, match=r"results.json holds simple_navigation/ippo made with other settings; this "
+                                         r"run would replace it: give another --out \(e.g. for a smoke run\), or --force"):
+        run_benchmark(out, **dict(kwargs, algos=["ippo"], total_steps=2 * 1024, eval_points=2))
+    assert logs == [] and not (run.parent / "ippo.set-aside-1").exists()     # refused before anything moved
+    again = run_benchmark(out, **dict(kwargs, algos=["ippo"], total_steps=2 * 1024, eval_points=2), force=True)
     assert logs[0].endswith("; 1 of its cells were made with other settings and train again")
     assert f"{run} holds a run with other settings: moved to {run}.set-aside-1" in logs
     assert (run.parent / "ippo.set-aside-1" / "params.npz").exists() and (run / "params.npz").exists()
@@ -343,6 +358,10 @@ def test_env_and_hp_overrides_are_part_of_a_cells_settings():
     plain = benchmark.cell_settings(chosen, "predator_capture_prey")
     marbler_loop = benchmark.cell_settings(chosen, "predator_capture_prey", env_overrides={"control_period": 15})
     assert plain[0] == {"control_period": 1} and marbler_loop[0] == {"control_period": 15}
+    # --protocol marbler replaces the recipe's loop instead of contradicting it
+    protocol = benchmark.cell_settings(chosen, "predator_capture_prey", env_overrides={"protocol": "marbler"})
+    assert protocol[0] == {"protocol": "marbler"}
+    assert recipes.settings_digest(*protocol) != recipes.settings_digest(*plain)
     assert plain[1:] == marbler_loop[1:]
     assert recipes.settings_digest(*plain) == chosen.digest("predator_capture_prey")
     assert recipes.settings_digest(*marbler_loop) != recipes.settings_digest(*plain)

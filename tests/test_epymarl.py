@@ -199,6 +199,13 @@ def test_import_cli_then_evaluate_in_both_protocols(tmp_path, capsys):
         assert result["algo"] == "qmix_ns" and result["paper"]["reward"] == [31.76, 2.7]
     assert sorted(p.name for p in out.iterdir()) == files        # evaluate never writes into a policy folder
     assert "protocol marbler" in capsys.readouterr().out
+    # export and render take the policy folder like a run
+    assert cli(["export", str(out), "--bundle", str(tmp_path / "bundle2"), "--episodes", "1"]) == 0
+    assert (tmp_path / "bundle2" / "policy_spec.npy").exists()
+    assert cli(["export", str(out), "--out", str(tmp_path / "x")]) == 2         # one clear line, no traceback
+    assert "already a policy folder: give --bundle B" in capsys.readouterr().err
+    assert cli(["render", str(out), "--out", str(tmp_path / "pcp.gif"), "--no-progress"]) == 0
+    assert (tmp_path / "pcp.gif").stat().st_size > 0
 
 
 def test_marbler_protocol_sets_what_marbler_ships():
