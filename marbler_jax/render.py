@@ -192,9 +192,12 @@ def save_movie(frames, path, fps: float = 6.0) -> None:
     suffix = path.suffix.lower()
     if suffix not in (".gif", ".mp4"):
         raise ValueError(f"movie file must end in .gif or .mp4, got {path.name!r}")
+    if not (isinstance(fps, (int, float)) and not isinstance(fps, bool) and 0 < fps <= 100):
+        raise ValueError(f"fps must be a number in (0, 100] frames per second, got {fps!r}")
     path.parent.mkdir(parents=True, exist_ok=True)
     if suffix == ".gif":
-        imageio.mimsave(path, np.stack(frames), duration=1.0 / fps, loop=0)
+        # imageio's pillow writer takes the frame duration in milliseconds (GIF stores hundredths of a second)
+        imageio.mimsave(path, np.stack(frames), duration=1000.0 / fps, loop=0)
         return
     try:
         import imageio_ffmpeg  # noqa: F401

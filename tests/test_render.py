@@ -58,6 +58,12 @@ def test_render_cli_writes_a_gif_of_a_scenario_grid(tmp_path, capsys):
     frames = imageio.mimread(gif)
     assert 2 <= len(frames) <= 6 and frames[0].shape[1] > frames[0].shape[0]
     assert f"-> {gif}" in capsys.readouterr().out
+    from PIL import Image
+
+    assert Image.open(gif).info["duration"] == 160            # the default 6 fps, in GIF's 10 ms steps
+    assert main(["render", "warehouse", "--out", str(gif), "--fps", "2", "--no-progress",
+                 "--set", "max_episode_steps=2"]) == 0
+    assert Image.open(gif).info["duration"] == 500
 
 
 def test_render_cli_writes_an_mp4_without_warnings(tmp_path):
@@ -78,6 +84,7 @@ def test_render_cli_writes_an_mp4_without_warnings(tmp_path):
     (["render", "no_such_scenario", "--out", "x.gif"], "neither a run folder"),
     (["render", "warehouse", "--out", "x.avi"], ".gif or .mp4"),
     (["render", "warehouse", "--out", "x.gif", "--envs", "0"], "--envs"),
+    (["render", "warehouse", "--out", "x.gif", "--fps", "0"], "fps must be a number in (0, 100]"),
 ])
 def test_render_cli_rejects_bad_input(argv, message, tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
