@@ -148,7 +148,7 @@ def table_markdown(out: Path) -> str:
         "numpy policy (its forward pass equals MARBLER's torch agents: `tests/test_epymarl.py`), which then runs "
         "(a) in marbler-jax's `marbler` protocol, (b) in MARBLER's own code at the paper's commit "
         "(`scripts/marbler_oracle.py`), and (d) in marbler-jax's robots' loop; (c) is the paper's Table II "
-        "(100 episodes of the best seed's model). Mean ± 95 % CI half-width over "
+        "(mean ± standard deviation over 100 episodes). (a), (b), (d): mean ± 95 % CI half-width over "
         + ", ".join(f"{n} episodes for {LOOPS[loop][:3]}" for loop, n in counts.items())
         + "; *agree*: the 95 % CI of (a) − (b) contains 0. Made with:",
         "",
@@ -214,8 +214,8 @@ def main(argv=None):
     parser.add_argument("--workers", type=int, default=1, help="MARBLER processes at a time (for `marbler`)")
     parser.add_argument("--python", default=str(REPO / ".marbler-venv" / "bin" / "python"),
                         help="a Python with MARBLER's stack (for `marbler`)")
-    args = parser.parse_args(argv)
     parser.add_argument("--results-md", default=None, help="page whose paper-models block `table` rewrites")
+    args = parser.parse_args(argv)
     {"import": _import, "marbler": _marbler, "evaluate": _evaluate, "table": _table}[args.command](args)
 
 

@@ -64,6 +64,21 @@ def test_scenario_config_values_are_checked_with_the_key_named():
         marbler_jax.make("warehouse", max_episode_steps=float("inf"))
 
 
+@pytest.mark.parametrize("scenario, key, value", [
+    ("predator_capture_prey", "capture_radius", -0.1), ("predator_capture_prey", "predator_radius", 0.0),
+    ("rware", "pickup_radius", -1.0), ("material_transport", "zone1_radius", -0.2),
+    ("arctic_transport", "fast_step", -0.3), ("discovery", "agent_spacing", 0.0),
+    ("discovery", "landmark_spacing", 0.0), ("foraging", "spawn_spacing", 0.0), ("discovery", "sensing_radius", -1.0),
+])
+def test_radii_spacings_and_steps_must_be_positive(scenario, key, value):
+    """Every length a scenario takes (radii, spawn spacings, step lengths) is > 0, the error naming key and
+    value: a negative radius trained silently, a zero spacing divided by zero."""
+    import marbler_jax
+
+    with pytest.raises(ValueError, match=rf"^{key} must be a distance > 0 \[m\], got {value}$"):
+        marbler_jax.make(scenario, **{key: value})
+
+
 def test_barrier_parameters_must_be_finite():
     from marbler_jax import cbf
 

@@ -60,6 +60,10 @@ def merge_settings(base: dict, overrides: dict) -> dict:
     return {**base, **overrides}
 
 
+POSITIVE_LENGTHS = ("_dist", "_step", "_spacing", "_radius")
+"""Config keys ending in these are lengths [m] that must be > 0 (step lengths, spawn spacings, radii)."""
+
+
 @dataclasses.dataclass(frozen=True)
 class ScenarioConfig:
     """Settings shared by every scenario (MARBLER ``config.yaml`` names where MARBLER has one).
@@ -140,9 +144,11 @@ class ScenarioConfig:
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad value and what is allowed."""
         _positive_int(self, "max_episode_steps", "update_frequency", "control_period")
-        for f in dataclasses.fields(self):          # spacings and step lengths (``*_dist``) [m]
+        for f in dataclasses.fields(self):          # step lengths, spacings and radii [m]
             value = getattr(self, f.name)
-            if f.name.endswith("_dist") and not (isinstance(value, (int, float)) and value > 0):
+            if (f.name.endswith(POSITIVE_LENGTHS) and not f.name.startswith("cbf_")     # the barrier's: below
+                    and value is not None
+                    and not (isinstance(value, (int, float)) and not isinstance(value, bool) and value > 0)):
                 raise ValueError(f"{f.name} must be a distance > 0 [m], got {value!r}")
         if self.barrier_certificate not in BARRIERS:
             raise ValueError(f"barrier_certificate={self.barrier_certificate!r} is not one of {list(BARRIERS)}")

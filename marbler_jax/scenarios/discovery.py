@@ -82,8 +82,6 @@ class DiscoveryConfig(JaxRobotariumConfig):
                              f"{self.n_tagging}")
         if self.num_landmarks < 1:
             raise ValueError(f"num_landmarks must be >= 1, got {self.num_landmarks}")
-        if self.sensing_radius <= 0 or self.tagging_radius <= 0:
-            raise ValueError("sensing_radius and tagging_radius must be > 0")
         check_grid_capacity("discovery", self.n_sensing + self.n_tagging, self.agent_spacing, self.agent_area)
         check_grid_capacity("discovery", self.num_landmarks, self.landmark_spacing, self.landmark_area, "landmarks")
 

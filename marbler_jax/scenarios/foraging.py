@@ -65,8 +65,6 @@ class ForagingConfig(JaxRobotariumConfig):
             raise ValueError(f"levels must be one positive number per robot, got {self.levels}")
         if not 1 <= self.num_resources <= n:
             raise ValueError(f"num_resources must be in [1, {n}] (one per robot at most), got {self.num_resources}")
-        if self.forage_radius <= 0:
-            raise ValueError(f"forage_radius must be > 0, got {self.forage_radius}")
         check_grid_capacity("foraging", n + self.num_resources, self.spawn_spacing, self.spawn_area,
                             "robots and resources")
 
