@@ -88,6 +88,17 @@ UNI_KINDS = ("uni", "uni2", "uni_boundary", "uni_v2", "uni_boundary_v2") + DD_KI
 KINDS = SI_KINDS + UNI_KINDS
 
 # rps v2's magnitude polygon: 8 unit normals per robot, 45 degrees apart starting at +x.
+FAR_AWAY = 100.0
+"""[m] A robot with a coordinate beyond +-FAR_AWAY (thirty arena widths out) is treated like one with a
+non-finite pose: taken out of the barrier's QP with zero velocity, so that squaring its distances (which
+overflows float32 from about 1e19 m) cannot turn the other robots' commands into NaN."""
+
+
+def _usable(xp, positions, axis):
+    """Whether positions are finite and within :data:`FAR_AWAY` along ``axis`` (the coordinate axis)."""
+    return xp.all(xp.isfinite(positions) & (xp.abs(positions) <= FAR_AWAY), axis=axis)
+
+
 _R = 1 / math.sqrt(2)
 _POLYGON_NORMALS = ((1.0, 0.0), (_R, _R), (0.0, 1.0), (-_R, _R), (-1.0, 0.0), (-_R, -_R), (0.0, -1.0), (_R, -_R))
 
@@ -395,10 +406,11 @@ class Barrier:
 
 
 def _zero_broken(u, x, u_nom):
-    """Zero velocity for robots whose pose or nominal input is not finite (mapping back through a
-    non-finite heading would make their command NaN again)."""
+    """Zero velocity for robots whose pose or nominal input is not finite, or whose position is beyond
+    :data:`FAR_AWAY` (mapping back through a non-finite heading would make their command NaN again)."""
     xp = namespace(u, x)
-    finite = xp.all(xp.isfinite(x), axis=-1) & xp.all(xp.isfinite(u_nom), axis=-1)
+    finite = (_usable(xp, x[..., :2], -1) & xp.all(xp.isfinite(x), axis=-1)
+              & xp.all(xp.isfinite(u_nom), axis=-1))
     return xp.where(finite[..., None], u, 0)
 
 
@@ -639,9 +651,9 @@ def solve_si_minor(barrier: Barrier, u_nom, points, warm_start: Multipliers | No
     """
     xp = namespace(u_nom, points)
     n = points.shape[0]
-    # A robot with a non-finite position, heading or nominal input is taken out of the QP (no rows,
-    # zero velocity, the team reported not feasible): the others are still certified against each other.
-    broken = ~(xp.all(xp.isfinite(points), axis=1) & xp.all(xp.isfinite(u_nom), axis=1))     # [N, B]
+    # A robot with a non-finite (or FAR_AWAY) position, a non-finite heading or nominal input is taken out
+    # of the QP (no rows, zero velocity, the team reported not feasible): the others are still certified.
+    broken = ~(_usable(xp, points, 1) & xp.all(xp.isfinite(u_nom), axis=1))     # [N, B]
     heads = headings
     if heads is not None:
         broken = broken | ~xp.isfinite(heads)

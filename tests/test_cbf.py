@@ -385,7 +385,7 @@ def test_a_non_finite_robot_is_taken_out_and_the_others_are_still_certified(kind
     x = np.concatenate([rng.uniform(-1, 1, (6, 2)), rng.uniform(-3, 3, (6, dim - 2))], -1)
     u = rng.normal(size=(6, 2)) * 0.1
     alone, _ = barrier.solve(u[:5], x[:5])
-    for bad in (("x", np.nan), ("x", np.inf), ("u", np.nan)):
+    for bad in (("x", np.nan), ("x", np.inf), ("u", np.nan), ("x", 1e20), ("x", -cbf.FAR_AWAY * 1.01)):
         xb, ub = x.copy(), u.copy()
         (xb if bad[0] == "x" else ub)[5, 0] = bad[1]
         out, info = barrier.solve(ub, xb)

@@ -115,10 +115,11 @@ def test_violation_ends_episode_with_penalty():
     assert int(info["steps"]) == 1
 
 
-@pytest.mark.parametrize("bad", [np.nan, np.inf])
+@pytest.mark.parametrize("bad", [np.nan, np.inf, 1e20, -1e6])
 def test_a_non_finite_pose_is_a_violation_and_the_others_still_move_safely(bad):
-    """A robot whose position is not finite is out of bounds at the step's first tick: the episode
-    ends with the violation reward, and the barrier certified the other robots without it."""
+    """A robot whose position is not finite, or finite but far outside the arena (1e20 m squared overflows
+    float32), is out of bounds at the step's first tick: the episode ends with the violation reward, and the
+    barrier certified the other robots without it."""
     env = marbler_jax.make("predator_capture_prey", control_period=1)
     _, state = env.reset(jax.random.PRNGKey(0))
     state = state.replace(poses=state.poses.at[2, 0].set(bad))
