@@ -382,3 +382,27 @@ print("ok")
 def test_a_rollout_split_over_devices_runs_each_share_like_one_device():
     """``make_rollout(..., devices=2)`` (two CPU devices, set before JAX first runs: a fresh interpreter)."""
     run_with_two_devices(SPLIT_ROLLOUT)
+
+
+def test_a_protocol_replaces_the_settings_it_decides():
+    """``merge_settings``: ``--protocol`` on top of a recipe's or a saved run's settings replaces what the
+    protocol decides; another override on a protocol run changes only that setting."""
+    import dataclasses
+
+    from marbler_jax.scenarios.base import merge_settings
+
+    def config(base, overrides):
+        c = marbler_jax.make("predator_capture_prey", **merge_settings(base, overrides)).config
+        return c.physics, c.control_period, c.zero_reset_obs, c.barrier_certificate
+
+    marbler_run = dataclasses.asdict(marbler_jax.make("predator_capture_prey", protocol="marbler").config)
+    robots_run = dataclasses.asdict(marbler_jax.make("predator_capture_prey").config)
+    v2_run = dataclasses.asdict(marbler_jax.make("predator_capture_prey", robotarium="v2").config)
+    assert config({"control_period": 1}, {"protocol": "marbler"}) == ("marbler", 15, True, "safe")
+    assert config(robots_run, {"protocol": "marbler"}) == ("marbler", 15, True, "safe")
+    assert config(marbler_run, {"protocol": "robots"}) == ("robotarium", 1, False, "safe")
+    assert config(v2_run, {"protocol": "robots"}) == ("robotarium", 1, False, "safe_v2")
+    assert config(marbler_run, {"control_period": 1}) == ("marbler", 1, True, "safe")     # the loop alone
+    assert config({"protocol": "marbler"}, {"physics": "robotarium"}) == ("robotarium", 15, True, "safe")
+    with pytest.raises(ValueError, match="protocol='robots' uses physics='robotarium', but physics='marbler'"):
+        marbler_jax.make("predator_capture_prey", protocol="robots", physics="marbler")

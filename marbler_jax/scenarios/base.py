@@ -33,8 +33,9 @@ PROTOCOLS = {
     # MARBLER as shipped, where the paper's models trained and its Table II was measured: rps 6bb184e,
     # controller and barrier every 15 iterations with the command held between, all-zero first observation
     "marbler": {"robotarium": "2023", "control_period": 15, "zero_reset_obs": True},
-    # the loop a bundle runs on the robots: controller and barrier every iteration (the defaults)
-    "robots": {"control_period": 1},
+    # the loop a bundle runs on today's robots: controller and barrier every iteration, rps v2 physics, the
+    # real first observation (the defaults)
+    "robots": {"control_period": 1, "physics": "robotarium", "zero_reset_obs": False},
 }
 """What ``protocol=`` sets. Settings given beside it must agree with it (a conflict is an error)."""
 
@@ -52,7 +53,11 @@ def merge_settings(base: dict, overrides: dict) -> dict:
 
     base = dict(base)
     if overrides.get("protocol") in PROTOCOLS:
-        drop = {"protocol", *decided("protocol", overrides["protocol"])}
+        settings = decided("protocol", overrides["protocol"])
+        drop = {"protocol", *settings}
+        simulator = ROBOTARIUM_SETTINGS.get(base.get("robotarium"), {})
+        if any(k in settings and settings[k] != v for k, v in simulator.items()):   # "robots" on a 2023 run
+            drop.add("robotarium")
         return {**{k: v for k, v in base.items() if k not in drop}, **overrides}
     for key, table in (("protocol", PROTOCOLS), ("robotarium", ROBOTARIUM_SETTINGS)):
         if any(name in overrides and overrides[name] != value for name, value in decided(key, base.get(key)).items()):
