@@ -201,7 +201,11 @@ def _train(args) -> int:
 
     from marbler_jax.scenarios.base import merge_settings
 
-    env_overrides, hp, steps = settings(args.preset, canonical_name(args.scenario), args.algo)
+    saved = _saved_run(args)
+    if saved is not None:                          # --resume: the run's own settings, the options given on top
+        env_overrides, hp, steps = saved
+    else:
+        env_overrides, hp, steps = settings(args.preset, canonical_name(args.scenario), args.algo)
     env_overrides = merge_settings(env_overrides, _env_settings(args))
     hp.update(parse_overrides(args.hp, "--hp"))
     from .data_parallel import use_cpu_devices
@@ -220,6 +224,38 @@ def _train(args) -> int:
           eval_episodes=args.eval_episodes, on_hang=lambda idle: _restart_resumed(args.argv, idle))
     print(f"run folder: {args.out}")
     return 0
+
+
+def _given(args, *flags) -> bool:
+    """Whether the command line named one of ``flags`` (``--x V`` or ``--x=V``)."""
+    return any(arg == flag or arg.startswith(flag + "=") for arg in args.argv for flag in flags)
+
+
+def _saved_run(args):
+    """For ``train --resume`` of a run folder with a ``config.json``: ``(env settings, hyperparameters, env
+    steps)`` as the run saved them, with ``args``' scenario, algorithm, seeds, seed and test episodes set from
+    the run unless the command line gives them (what it gives must match the run: the driver checks). ``None``
+    for a fresh run, or where ``--preset`` asks for a recipe's settings."""
+    import json
+
+    from marbler_jax.scenarios.base import renamed_keys
+
+    path = Path(args.out) / "config.json"
+    if not args.resume or not path.exists() or _given(args, "--preset"):
+        return None
+    try:
+        saved = json.loads(path.read_text())
+        for flag, name, key in (("--scenario", "scenario", "scenario"), ("--algo", "algo", "algo"),
+                                ("--seeds", "seeds", "seeds"), ("--seed", "seed", "seed"),
+                                ("--test-episodes", "test_episodes", "test_episodes")):
+            if not _given(args, flag):
+                setattr(args, name, saved.get(key, 0) if key == "test_episodes" else saved[key])
+        algorithm = dict(saved["algorithm"])
+        steps = int(algorithm.pop("total_timesteps"))
+        env = renamed_keys(saved["env"])
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
+        raise ValueError(f"--resume: {path} is not a run's config.json ({type(err).__name__}: {err})") from None
+    return env, algorithm, steps
 
 
 def _env_settings(args) -> dict:
@@ -631,7 +667,9 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--eval-episodes", type=int, default=256,
                     help="episodes of the final evaluation.json (the first seed's greedy policy and the random "
                          "policy; 0 = none)")
-    tr.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
+    tr.add_argument("--resume", action="store_true",
+                    help="continue the run in --out from its latest checkpoint, with the settings its config.json "
+                         "holds (options given must agree with them)")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
     tr.add_argument("--hang-seconds", type=float, default=120.0,
                     help="restart with --resume when the process used no CPU for this long inside a "

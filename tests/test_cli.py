@@ -106,6 +106,11 @@ def test_train_writes_a_complete_run_folder(tmp_path):
     assert config["algo"] == "ippo" and config["algorithm"]["total_timesteps"] == 2048 and config["seed"] == 7
     assert config["scenario"] == "warehouse"     # MARBLER's name, stored canonical (evaluate's paper column finds it)
     assert main(args + ["--seed", "8", "--resume"]) == 2      # a resume must keep the run's seed
+    # a resume needs no more than the folder: scenario, algorithm, seeds and settings come from config.json
+    saved = (out / "config.json").read_text()
+    assert main(["train", "--out", str(out), "--resume", "--no-progress", "--eval-episodes", "16"]) == 0
+    assert (out / "config.json").read_text() == saved
+    assert main(["train", "--out", str(out), "--resume", "--algo", "mappo", "--no-progress"]) == 2
     lines = (out / "metrics.jsonl").read_text().splitlines()
     assert len(lines) == 2048 // (16 * 16)
     evaluation = json.loads((out / "evaluation.json").read_text())
