@@ -59,21 +59,21 @@ _ERRORS: dict = {}
 
 
 def _validate_6bb184e(self, errors=_ERRORS):
-    """rps 6bb184e's ``RobotariumABC._validate``: per-robot boundary and collision counts, one shared dict."""
+    """rps 6bb184e's ``RobotariumABC._validate``: per-robot boundary and collision counts, one shared dict
+    (vectorised: the counts are rps's, the loops are numpy's)."""
     p = self.poses
-    for i in range(self.number_of_robots):
-        if p[0, i] < -1.6 or p[0, i] > 1.6 or p[1, i] < -1.0 or p[1, i] > 1.0:
-            errors.setdefault("boundary", {})
-            errors["boundary"][i] = errors["boundary"].get(i, 0) + 1
-            errors["boundary_string"] = "iteration(s) robots were outside the boundaries."
+    outside = (p[0] < -1.6) | (p[0] > 1.6) | (p[1] < -1.0) | (p[1] > 1.0)
+    for i in np.flatnonzero(outside):
+        errors.setdefault("boundary", {})
+        errors["boundary"][int(i)] = errors["boundary"].get(int(i), 0) + 1
+        errors["boundary_string"] = "iteration(s) robots were outside the boundaries."
     centres = p[:2] + 0.025 * np.vstack((np.cos(p[2]), np.sin(p[2])))
-    for j in range(self.number_of_robots - 1):
-        for k in range(j + 1, self.number_of_robots):
-            if np.linalg.norm(centres[:, j] - centres[:, k]) <= 0.135:
-                errors.setdefault("collision", {})
-                for robot in (j, k):
-                    errors["collision"][robot] = errors["collision"].get(robot, 0) + 1
-                errors["collision_string"] = "iteration(s) where robots collided."
+    gaps = np.sqrt(((centres[:, :, None] - centres[:, None, :]) ** 2).sum(0))
+    for j, k in zip(*np.nonzero(np.triu(gaps <= 0.135, 1))):
+        errors.setdefault("collision", {})
+        for robot in (int(j), int(k)):
+            errors["collision"][robot] = errors["collision"].get(robot, 0) + 1
+        errors["collision_string"] = "iteration(s) where robots collided."
     if np.any(np.abs(self._uni_to_diff(self.velocities)) > self.max_wheel_velocity):
         errors["actuator"] = errors.get("actuator", 0) + 1
         errors["actuator_string"] = "iteration(s) where the actuator limits were exceeded."
