@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import time
@@ -69,7 +70,8 @@ def _marbler(args) -> None:
         subprocess.run([args.python, str(REPO / "scripts" / "marbler_oracle.py"), "evaluate", "--scenario",
                         SCENARIOS[scenario], "--policy", str(policy_dir(args.out, scenario, algo)),
                         "--episodes", str(args.episodes), "--seed", str(args.seed), "--out", str(tmp)],
-                       check=True, stderr=subprocess.DEVNULL)
+                       check=True, stderr=subprocess.DEVNULL,
+                       env=dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1"))   # a core per process
         tmp.rename(target)
 
     (args.out / "marbler").mkdir(parents=True, exist_ok=True)
