@@ -484,11 +484,10 @@ def _import(args) -> int:
           f"{'shared' if spec['shared'] else 'per-robot'} parameters) for {spec['scenario']} to {args.out}")
     print(f"evaluate it: marbler-jax evaluate {args.out} (protocol {args.protocol}; --protocol robots for the "
           "robots' loop)")
-    if args.bundle is not None:                  # the robots' loop: controller and barrier every iteration
+    if args.bundle is not None:                  # today's robots: controller and barrier every iteration
         from .evaluate import open_policy
-        from marbler_jax.control_loop import ROBOTS_CONTROL_PERIOD
 
-        env, _ = open_policy(args.out, {"control_period": ROBOTS_CONTROL_PERIOD})
+        env, _ = open_policy(args.out, {"protocol": "robots"})
         write_bundle(env, args.out, args.bundle, spec["algo"], episodes=args.episodes, force=args.force)
         _print_bundle(Path(args.bundle))
     return 0

@@ -102,8 +102,75 @@ def _evaluate(args) -> None:
                   f"({result['seconds']:.0f} s)")
 
 
+# rps v2 runs the bundle as the Robotarium would, except the drive-in from the chargers to each episode's initial
+# poses (thousands of iterations of its own barrier, per episode): skipped, so the robots start exactly there.
+RPS_V2_PRELUDE = """
+import runpy, sys
+from rps import robotarium
+_init = robotarium.Robotarium.__init__
+def _no_drive_in(self, *args, **kwargs):
+    kwargs["skip_initialization"] = True
+    _init(self, *args, **kwargs)
+robotarium.Robotarium.__init__ = _no_drive_in
+sys.argv = ["main.py"]
+runpy.run_path("main.py", run_name="__main__")
+"""
+
+
+def parse_bundle_output(stdout: str, max_steps: int, metric_names) -> dict:
+    """Per-episode metrics from a bundle's ``episode k/K: return=... steps=...`` lines, counted as
+    :func:`marbler_jax.rollout.first_episode_metrics` counts them."""
+    rows: dict[str, list] = {}
+    for line in stdout.splitlines():
+        if not line.startswith("episode "):
+            continue
+        fields = dict(item.split("=", 1) for item in line.split(": ", 1)[1].split() if "=" in item)
+        violated = fields["violation"] == "True"
+        row = {"reward": float(fields["return"]), "steps": float(max_steps if violated else int(fields["steps"])),
+               "collisions": 100.0 * (fields["collisions"] == "True"),
+               "out_of_bounds": 100.0 * (fields["out_of_bounds"] == "True"),
+               **{name: float(fields[name]) for name in metric_names if name in fields}}
+        for key, value in row.items():
+            rows.setdefault(key, []).append(value)
+    return rows
+
+
+def _robotarium(args) -> None:
+    """(e): every model's Robotarium bundle (robots' loop) run by rps v2, ``--episodes`` start states each."""
+    sys.path.insert(0, str(REPO))
+    from marbler_jax.deploy.bundle import write_bundle
+    from marbler_jax_rl.evaluate import open_policy
+
+    from concurrent.futures import ThreadPoolExecutor
+
+    def run(item):
+        scenario, algo = item
+        target = args.out / "robotarium-v2" / f"{scenario}-{algo}.json"
+        folder = args.out / "bundles" / f"{scenario}-{algo}"
+        env, policy = open_policy(policy_dir(args.out, scenario, algo), {"protocol": "robots"})     # as (d)
+        write_bundle(env, policy_dir(args.out, scenario, algo), folder, algo, episodes=args.episodes,
+                     seed=args.seed, force=True)
+        start = time.perf_counter()
+        result = subprocess.run([args.python, "-c", RPS_V2_PRELUDE], cwd=folder, capture_output=True, text=True,
+                                env=dict(os.environ, MARBLER_JAX_HEADLESS="1", OPENBLAS_NUM_THREADS="1"))
+        if result.returncode != 0:
+            raise SystemExit(f"{folder}: rps v2 failed\n{result.stdout[-2000:]}\n{result.stderr[-2000:]}")
+        metrics = parse_bundle_output(result.stdout, env.max_steps, env.metric_names)
+        seconds = round(time.perf_counter() - start, 1)
+        target.write_text(json.dumps(dict(scenario=scenario, algo=algo, loop="robots", simulator="rps v2",
+                                          episodes=len(metrics["reward"]), seconds=seconds,
+                                          episodes_metrics=metrics)))
+        print(f"rps v2 {scenario} {algo}: reward {np.mean(metrics['reward']):.2f} ({seconds:.0f} s)", flush=True)
+
+    (args.out / "robotarium-v2").mkdir(parents=True, exist_ok=True)
+    todo = [(scenario, algo) for scenario, algo, _, _ in models()
+            if not (args.out / "robotarium-v2" / f"{scenario}-{algo}.json").exists()]
+    with ThreadPoolExecutor(args.workers) as pool:
+        list(pool.map(run, todo))
+
+
 LOOPS = {"marbler-jax": "(a) marbler-jax, MARBLER's protocol", "marbler": "(b) MARBLER's code",
-         "robots-loop": "(d) marbler-jax, robots' loop"}
+         "robots-loop": "(d) marbler-jax, robots' loop", "robotarium-v2": "(e) rps v2, the bundle"}
 LEFT = {"predator_capture_prey": "prey_left", "material_transport": "material_left"}
 
 
@@ -149,26 +216,30 @@ def table_markdown(out: Path) -> str:
         "MARBLER ships the 16 models of its Table II (EPyMARL GRU agents). `marbler-jax import` converts each into a "
         "numpy policy (its forward pass equals MARBLER's torch agents: `tests/test_epymarl.py`), which then runs "
         "(a) in marbler-jax's `marbler` protocol, (b) in MARBLER's own code at the paper's commit "
-        "(`scripts/marbler_oracle.py`), and (d) in marbler-jax's robots' loop; (c) is the paper's Table II "
-        "(mean ± standard deviation over 100 episodes). (a), (b), (d): mean ± 95 % CI half-width over "
+        "(`scripts/marbler_oracle.py`), (d) in marbler-jax's robots' loop (today's robots: controller and "
+        "barrier every iteration, rps v2 physics, the real first observation) and (e) as the Robotarium bundle "
+        "that `marbler-jax export POLICY --bundle` writes, run by today's Robotarium simulator (rps v2, its "
+        "drive-in to the start poses skipped); (c) is the paper's Table II (mean ± standard deviation over 100 "
+        "episodes). Elsewhere mean ± 95 % CI half-width over "
         + ", ".join(f"{n} episodes for {LOOPS[loop][:3]}" for loop, n in counts.items())
         + "; *agree*: the 95 % CI of (a) − (b) contains 0. Made with:",
         "",
         "```bash",
         "python scripts/paper_models.py import && python scripts/paper_models.py evaluate",
         "python scripts/paper_models.py marbler --python .marbler-venv/bin/python --workers 2",
+        "python scripts/paper_models.py robotarium --python .rps-v2-venv/bin/python --episodes 30 --workers 2",
         "python scripts/paper_models.py table --results-md RESULTS.md",
         "```",
         "",
         "### Reward",
         "",
         "| scenario | algorithm | (a) marbler-jax, MARBLER's protocol | (b) MARBLER's code | (a) − (b) [95 % CI] "
-        "| agree | (c) paper | (d) robots' loop |",
-        "|---|---|---|---|---|---|---|---|",
+        "| agree | (c) paper | (d) robots' loop | (e) rps v2, the bundle |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     agree = []
     for scenario, algo, _, _ in models():
-        a, b, d = (_episodes(out, loop, scenario, algo) for loop in ("marbler-jax", "marbler", "robots-loop"))
+        a, b, d, e = (_episodes(out, loop, scenario, algo) for loop in LOOPS)
         paper = PAPER.get(scenario, {}).get(algo, {}).get("reward")
         diff, verdict = "—", "—"
         if a is not None and b is not None:
@@ -177,7 +248,8 @@ def table_markdown(out: Path) -> str:
             verdict = "yes" if ok else "**no**"
             agree.append(ok)
         lines.append(f"| {scenario} | {algo} | {_cell(a and a['reward'])} | {_cell(b and b['reward'])} | {diff} | "
-                     f"{verdict} | {f'{paper[0]:g} ± {paper[1]:g}' if paper else '—'} | {_cell(d and d['reward'])} |")
+                     f"{verdict} | {f'{paper[0]:g} ± {paper[1]:g}' if paper else '—'} | {_cell(d and d['reward'])} | "
+                     f"{_cell(e and e['reward'])} |")
     lines += ["", f"(a) and (b) agree on {sum(agree)} of {len(agree)} models.", "",
               "### Task metrics: (a) marbler-jax, MARBLER's protocol / (b) MARBLER's code", "",
               "| scenario | algorithm | steps | prey / material left | collisions % | out of bounds % |",
@@ -191,6 +263,12 @@ def table_markdown(out: Path) -> str:
                 continue
             digits = 1 if metric in ("collisions", "out_of_bounds", "steps") else 2
             cells.append(f"{_cell(a and a[metric], digits)} / {_cell(b and b[metric], digits)}")
+        lines.append(f"| {scenario} | {algo} | " + " | ".join(cells) + " |")
+    lines += ["", "### Collisions and boundary violations on today's robots: (d) marbler-jax, robots' loop / (e) rps "
+              "v2, the bundle", "", "| scenario | algorithm | collisions % | out of bounds % |", "|---|---|---|---|"]
+    for scenario, algo, _, _ in models():
+        d, e = (_episodes(out, loop, scenario, algo) for loop in ("robots-loop", "robotarium-v2"))
+        cells = [f"{_cell(d and d[m], 1)} / {_cell(e and e[m], 1)}" for m in ("collisions", "out_of_bounds")]
         lines.append(f"| {scenario} | {algo} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
@@ -209,16 +287,20 @@ def _table(args) -> None:
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("command", choices=["import", "marbler", "evaluate", "table"])
+    parser.add_argument("command", choices=["import", "marbler", "evaluate", "robotarium", "table"])
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument("--episodes", type=int, default=500)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=1, help="MARBLER processes at a time (for `marbler`)")
-    parser.add_argument("--python", default=str(REPO / ".marbler-venv" / "bin" / "python"),
-                        help="a Python with MARBLER's stack (for `marbler`)")
+    parser.add_argument("--python", default=None,
+                        help="a Python with MARBLER's stack (for `marbler`; default .marbler-venv) or with rps v2 (for "
+                             "`robotarium`; default .rps-v2-venv, the test suite's)")
     parser.add_argument("--results-md", default=None, help="page whose paper-models block `table` rewrites")
     args = parser.parse_args(argv)
-    {"import": _import, "marbler": _marbler, "evaluate": _evaluate, "table": _table}[args.command](args)
+    if args.python is None:
+        args.python = str(REPO / (".rps-v2-venv" if args.command == "robotarium" else ".marbler-venv") / "bin" / "python")
+    {"import": _import, "marbler": _marbler, "evaluate": _evaluate, "robotarium": _robotarium,
+     "table": _table}[args.command](args)
 
 
 if __name__ == "__main__":
