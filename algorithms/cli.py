@@ -380,7 +380,10 @@ def _export(args) -> int:
     if args.out is None:
         raise ValueError("--out is required to export a run (the policy folder to write)")
 
-    spec = export_policy(args.run, args.out, seed_index=args.seed_index, checkpoint=args.checkpoint,
+    from .run import Run
+
+    seed_index = Run.open(args.run).seed_index(args.seed_index)
+    spec = export_policy(args.run, args.out, seed_index=seed_index, checkpoint=args.checkpoint,
                          bundle=args.bundle, episodes=args.episodes, bundle_seed=args.bundle_seed,
                          control_period=None if args.control_period == "train" else args.control_period,
                          force=args.force)
@@ -416,6 +419,19 @@ def _bundle_policy_folder(args) -> int:
                  force=args.force)
     _print_bundle(Path(args.bundle))
     return 0
+
+
+def _seed_choice(text: str):
+    """``--seed-index``: ``best`` or an index >= 0."""
+    if text == "best":
+        return text
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a seed index >= 0 or 'best'")
+    return value
 
 
 def _period(text: str):
@@ -515,7 +531,9 @@ def _quickstart(args) -> int:
     _episode_gif(out, gif)
     from .export import export_policy
 
-    export_policy(out, out / "policy", bundle=out / "robotarium")
+    from .run import Run
+
+    export_policy(out, out / "policy", seed_index=Run.open(out).seed_index("best"), bundle=out / "robotarium")
     replace_folder(out, final)
     out = final
     better = result["trained"]["return"] > result["random"]["return"]
@@ -552,8 +570,11 @@ def _render(args) -> int:
 
         if args.set:
             raise ValueError("--set applies to a scenario name; a run renders with the settings it was trained with")
-        env, policy = load_run(target, seed_index=args.seed_index, checkpoint=args.checkpoint)
-        what = f"greedy policy of {target} ({args.checkpoint} parameters, seed {args.seed_index})"
+        from .run import Run
+
+        seed_index = Run.open(target).seed_index(args.seed_index)
+        env, policy = load_run(target, seed_index=seed_index, checkpoint=args.checkpoint)
+        what = f"greedy policy of {target} ({args.checkpoint} parameters, seed {seed_index})"
     elif (target / "policy_spec.npy").exists():
         from .evaluate import open_policy
         from marbler_jax.rollout import numpy_policy_greedy
@@ -698,7 +719,9 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("run", help="run folder written by `marbler-jax train`, or a policy folder (then only --bundle)")
     ex.add_argument("--out", default=None, help="policy folder to write (flat, .npy files only); required for a run")
     ex.add_argument("--checkpoint", default=DEFAULT_CHECKPOINT, choices=CHECKPOINTS, help=CHECKPOINT_HELP)
-    ex.add_argument("--seed-index", type=int, default=0, help="which of the run's seeds to export")
+    ex.add_argument("--seed-index", type=_seed_choice, default="best",
+                    help="which of the run's seeds to export: an index, or best (the one `evaluate --best-seed` "
+                         "reports)")
     ex.add_argument("--bundle", default=None,
                     help="also write a flat Robotarium submission bundle (main.py + files) to this folder")
     ex.add_argument("--episodes", type=int, default=2, help="episodes the bundle runs (start states drawn now)")
@@ -714,7 +737,8 @@ def build_parser() -> argparse.ArgumentParser:
     rd.add_argument("--out", required=True, help="movie file: .gif, or .mp4 with imageio-ffmpeg installed")
     rd.add_argument("--envs", type=int, default=1, help="episodes side by side in a grid (vmapped envs)")
     rd.add_argument("--checkpoint", default=DEFAULT_CHECKPOINT, choices=CHECKPOINTS, help=CHECKPOINT_HELP)
-    rd.add_argument("--seed-index", type=int, default=0, help="which of the run's seeds")
+    rd.add_argument("--seed-index", type=_seed_choice, default="best",
+                    help="which of the run's seeds: an index, or best (the one `evaluate --best-seed` reports)")
     rd.add_argument("--seed", type=int, default=0, help="episode randomness")
     rd.add_argument("--fps", type=float, default=6.0)
     rd.add_argument("--set", action="append", default=[], help="scenario config override key=value")

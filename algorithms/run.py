@@ -100,6 +100,18 @@ class Run:
         except Exception as err:   # orbax raises several types for damaged folders
             raise ValueError(f"cannot restore the best checkpoint in {best}: {err}") from err
 
+    def seed_index(self, which) -> int:
+        """The index of seed ``which``: an index, or ``"best"`` (:meth:`best_seed`; seed 0 of a one-seed
+        run, or of a run that logged no per-seed scores)."""
+        if which != "best":
+            return which
+        if self.seeds == 1:
+            return 0
+        try:
+            return self.best_seed()[0]
+        except ValueError:
+            return 0
+
     def seed_params(self, seed_index: int = 0, checkpoint: str = DEFAULT_CHECKPOINT):
         """One seed's parameters (numpy leaves)."""
         return select_seed(self.params(checkpoint), seed_index)

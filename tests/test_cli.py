@@ -126,7 +126,7 @@ TINY_PCP_VDN = ["train", "--scenario", "predator_capture_prey", "--algo", "vdn",
                 "--eval-episodes", "0"]
 
 
-def test_train_vdn_then_evaluate_best_checkpoint(tmp_path, capsys):
+def test_train_vdn_then_evaluate_best_checkpoint(tmp_path, capsys, monkeypatch):
     out = tmp_path / "vdn"
     code = main(TINY_PCP_VDN + ["--out", str(out)])
     assert code == 0
@@ -155,8 +155,18 @@ def test_train_vdn_then_evaluate_best_checkpoint(tmp_path, capsys):
     assert main(["render", str(out), "--out", str(gif), "--checkpoint", "best", "--envs", "2", "--no-progress"]) == 0
     frames = imageio.mimread(gif)
     assert 2 <= len(frames) <= 82 and frames[0].shape[1] > 1.5 * frames[0].shape[0]
+    assert f"seed {best['seed_indices'][0]})" in capsys.readouterr().out     # the seed evaluate --best-seed reports
     assert main(["render", str(out), "--out", str(gif), "--seed-index", "5", "--no-progress"]) == 2
     assert "out of range" in capsys.readouterr().err
+    # export's default is that seed too (here made seed 1, which index 0 would not find by chance)
+    from marbler_jax.numpy_policy import load_policy
+    from marbler_jax_rl.run import Run
+
+    monkeypatch.setattr(Run, "best_seed", lambda self: (1, 0.0))
+    assert main(["export", str(out), "--out", str(tmp_path / "policy")]) == 0
+    assert load_policy(tmp_path / "policy").spec["seed_index"] == 1
+    assert main(["export", str(out), "--out", str(tmp_path / "policy"), "--seed-index", "0"]) == 0
+    assert load_policy(tmp_path / "policy").spec["seed_index"] == 0
 
 
 @pytest.mark.slow     # a diagnostic script of one scenario, on a run trained like the test above
