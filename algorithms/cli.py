@@ -412,8 +412,10 @@ def _bundle_policy_folder(args) -> int:
         raise ValueError(f"{args.run} is already a policy folder: give --bundle B to write its Robotarium bundle")
     if args.out is not None:
         raise ValueError(f"{args.run} is already a policy folder: drop --out (or export a run folder)")
-    overrides = {} if args.control_period == "train" else {"control_period": args.control_period}
-    env, policy = open_policy(args.run, overrides)
+    from marbler_jax.deploy.bundle import deployment_settings
+
+    env, policy = open_policy(args.run, deployment_settings(None if args.control_period == "train"
+                                                            else args.control_period))
     spec = policy.spec
     write_bundle(env, args.run, args.bundle, spec.get("algo", "policy"), episodes=args.episodes, seed=args.bundle_seed,
                  force=args.force)
@@ -500,10 +502,11 @@ def _import(args) -> int:
           f"{'shared' if spec['shared'] else 'per-robot'} parameters) for {spec['scenario']} to {args.out}")
     print(f"evaluate it: marbler-jax evaluate {args.out} (protocol {args.protocol}; --protocol robots for the "
           "robots' loop)")
-    if args.bundle is not None:                  # today's robots: controller and barrier every iteration
+    if args.bundle is not None:
         from .evaluate import open_policy
+        from marbler_jax.deploy.bundle import deployment_settings
 
-        env, _ = open_policy(args.out, {"protocol": "robots"})
+        env, _ = open_policy(args.out, deployment_settings())
         write_bundle(env, args.out, args.bundle, spec["algo"], episodes=args.episodes, force=args.force)
         _print_bundle(Path(args.bundle))
     return 0

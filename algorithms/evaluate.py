@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from marbler_jax.control_loop import ROBOTS_CONTROL_PERIOD
+from marbler_jax.deploy.bundle import deployment_settings
 from marbler_jax.rollout import first_episode_metrics, make_rollout
 from .driver import ALGORITHMS
 from .run import DEFAULT_CHECKPOINT, Run
@@ -77,8 +78,8 @@ def evaluate_run(run, episodes: int = 100, checkpoint: str = DEFAULT_CHECKPOINT,
     ``seed_selection="best"`` of the one seed :meth:`Run.best_seed` picks (the paper's protocol).
 
     The policy is evaluated in the loop it trained in (``pooled``, ``per_seed``) and, when that loop's
-    ``control_period`` is not 1, also in the robots' loop that a bundle deploys (``deployed``: the same
-    env with controller and barrier every tick, the same start states): MARBLER's sim-vs-real
+    ``control_period`` is not 1, also in the loop a bundle deploys (``deployed``:
+    :func:`~marbler_jax.deploy.bundle.deployment_settings`, today's robots; the same start states): MARBLER's sim-vs-real
     comparison as training loop vs deployment loop, in simulation. ``env_overrides`` (e.g.
     ``{"protocol": "marbler"}``) evaluate in another env than the one the run trained in."""
     if seed_selection not in ("all", "best"):
@@ -96,7 +97,7 @@ def evaluate_run(run, episodes: int = 100, checkpoint: str = DEFAULT_CHECKPOINT,
     seeds = [opened.best_seed()[0]] if seed_selection == "best" else list(range(n_seeds))
     loops = {"trained": env}
     if env.config.control_period != ROBOTS_CONTROL_PERIOD:
-        loops["deployed"] = opened.env(control_period=ROBOTS_CONTROL_PERIOD)
+        loops["deployed"] = opened.env(**deployment_settings())
     jobs = [(name, s) for name in loops for s in seeds]
     if progress:
         from tqdm.auto import tqdm

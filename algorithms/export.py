@@ -19,7 +19,7 @@ from .driver import flatten_params
 from .run import DEFAULT_CHECKPOINT, Run
 from .networks import QAgent
 from marbler_jax.control_loop import ROBOTS_CONTROL_PERIOD
-from marbler_jax.deploy.bundle import check_target, replace_folder, write_bundle
+from marbler_jax.deploy.bundle import check_target, deployment_settings, replace_folder, write_bundle
 from marbler_jax.numpy_policy import FORMAT, SPEC_FILE, NumpyPolicy, file_sha256
 
 
@@ -80,10 +80,10 @@ def export_policy(run, out, seed_index: int = 0, checkpoint: str = DEFAULT_CHECK
 
     With ``bundle`` (a folder), also write the Robotarium submission bundle there
     (:func:`marbler_jax.deploy.bundle.write_bundle`) with ``episodes`` start states drawn from
-    ``bundle_seed``. The bundle recomputes controller and barrier every ``control_period``
-    Robotarium iterations: 1 (default) is the robots' loop, whatever period the policy trained with
-    (a command held for 15 iterations is what lets robots collide on the real testbed); ``None``
-    deploys the training period as it is. ``out`` and ``bundle`` are replaced only when empty or
+    ``bundle_seed``, in the loop :func:`~marbler_jax.deploy.bundle.deployment_settings` gives for
+    ``control_period``: 1 (default) today's robots, whatever protocol the policy trained in (a command
+    held for 15 iterations is what lets robots collide on the real testbed); ``None`` deploys the
+    training settings as they are. ``out`` and ``bundle`` are replaced only when empty or
     earlier outputs of ``export`` (``force`` replaces any folder; a file never)."""
     opened = Run.open(run)
     check_target(out, SPEC_FILE, "policy", force)
@@ -101,7 +101,7 @@ def export_policy(run, out, seed_index: int = 0, checkpoint: str = DEFAULT_CHECK
     extra = dict(env=config["env"], checkpoint=checkpoint, seed_index=seed_index)
     spec = export_params(opened.algo, opened.algorithm_config(), one, env, out, extra, force=force).spec
     if bundle is not None:
-        deployed = env if control_period is None else opened.env(control_period=control_period)
+        deployed = opened.env(**deployment_settings(control_period))
         write_bundle(deployed, out, bundle, opened.algo, episodes=episodes, seed=bundle_seed, force=force)
     return spec
 

@@ -138,7 +138,7 @@ def parse_bundle_output(stdout: str, max_steps: int, metric_names) -> dict:
 def _robotarium(args) -> None:
     """(e): every model's Robotarium bundle (robots' loop) run by rps v2, ``--episodes`` start states each."""
     sys.path.insert(0, str(REPO))
-    from marbler_jax.deploy.bundle import write_bundle
+    from marbler_jax.deploy.bundle import deployment_settings, write_bundle
     from marbler_jax_rl.evaluate import open_policy
 
     from concurrent.futures import ThreadPoolExecutor
@@ -147,7 +147,7 @@ def _robotarium(args) -> None:
         scenario, algo = item
         target = args.out / "robotarium-v2" / f"{scenario}-{algo}.json"
         folder = args.out / "bundles" / f"{scenario}-{algo}"
-        env, policy = open_policy(policy_dir(args.out, scenario, algo), {"protocol": "robots"})     # as (d)
+        env, policy = open_policy(policy_dir(args.out, scenario, algo), deployment_settings())     # as (d)
         write_bundle(env, policy_dir(args.out, scenario, algo), folder, algo, episodes=args.episodes,
                      seed=args.seed, force=True)
         start = time.perf_counter()

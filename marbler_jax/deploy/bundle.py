@@ -41,6 +41,17 @@ DRIVE_IN_SPACING = 0.15 + 2 * DRIVE_IN_PROJECTION   # m
 MAX_DRAWS = 100                                     # rounds of ``episodes`` reset keys before giving up
 
 
+def deployment_settings(control_period: int | None = 1) -> dict:
+    """Env settings (on top of a policy's own, see :func:`marbler_jax.scenarios.base.merge_settings`) of the
+    loop a bundle runs: with the default period 1 today's robots (``protocol="robots"``: controller and
+    barrier every iteration, rps v2's motor limits, the real first observation), whatever protocol the
+    policy trained in; another period keeps the policy's settings but that (a command held that long lets
+    robots collide on the testbed); ``None`` keeps the policy's settings as they are."""
+    if control_period is None:
+        return {}
+    return {"protocol": "robots"} if control_period == 1 else {"control_period": control_period}
+
+
 def drive_in_reachable(poses) -> np.ndarray:
     """Whether the Robotarium's drive-in can reach ``poses`` ``[..., N, 3]`` (bool ``[...]``): the points
     :data:`DRIVE_IN_PROJECTION` ahead of every two robots at least :data:`DRIVE_IN_SPACING` apart."""

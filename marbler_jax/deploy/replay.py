@@ -26,6 +26,7 @@ import marbler_jax
 from marbler_jax.deploy.main import load_config
 from marbler_jax.env import EnvState
 from marbler_jax.numpy_policy import load_policy
+from marbler_jax.scenarios.base import merge_settings
 
 
 def replay_trace(bundle, trace, physics: str = "deployed") -> list[dict]:
@@ -39,7 +40,7 @@ def replay_trace(bundle, trace, physics: str = "deployed") -> list[dict]:
     """
     bundle, trace = Path(bundle), Path(trace)
     config = load_config(str(bundle))
-    env = marbler_jax.make(config["scenario"], **{**config["config"], "physics": physics, "robotarium": None})
+    env = marbler_jax.make(config["scenario"], **merge_settings(config["config"], {"physics": physics, "robotarium": None}))
     dtype = jnp.asarray(0.0).dtype
     poses0 = np.load(bundle / "initial_poses.npy", allow_pickle=False)
     fields = {name: np.load(bundle / f"initial_{name}.npy", allow_pickle=False) for name in config["state_fields"]}
