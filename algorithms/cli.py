@@ -423,30 +423,27 @@ def _bundle_policy_folder(args) -> int:
     return 0
 
 
-def _seed_choice(text: str):
-    """``--seed-index``: ``best`` or an index >= 0."""
-    if text == "best":
+def _number_or_word(text: str, word: str, minimum: int, what: str):
+    """An argparse type: ``word`` itself, or an integer >= ``minimum``."""
+    if text == word:
         return text
     try:
         value = int(text)
     except ValueError:
-        value = -1
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a seed index >= 0 or 'best'")
+        value = minimum - 1
+    if value < minimum:
+        raise argparse.ArgumentTypeError(f"{text!r} is not {what} or {word!r}")
     return value
+
+
+def _seed_choice(text: str):
+    """``--seed-index``: ``best`` or an index >= 0."""
+    return _number_or_word(text, "best", 0, "a seed index >= 0")
 
 
 def _period(text: str):
     """``--control-period``: a positive integer, or ``train`` (kept as the string)."""
-    if text == "train":
-        return text
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a positive integer or 'train'")
-    return value
+    return _number_or_word(text, "train", 1, "a positive integer")
 
 
 def _print_bundle(folder: Path) -> None:

@@ -165,19 +165,15 @@ class ScenarioConfig:
             raise ValueError(f"cbf_relaxation={self.cbf_relaxation!r} must lie in (0, 2) (over-relaxation of the barrier sweeps)")
         from marbler_jax import physics
 
-        if self.protocol is not None:
-            if self.protocol not in PROTOCOLS:
-                raise ValueError(f"protocol={self.protocol!r} is not one of {list(PROTOCOLS)} (or None)")
-            for name, value in PROTOCOLS[self.protocol].items():
+        for key, table in (("protocol", PROTOCOLS), ("robotarium", ROBOTARIUM_SETTINGS)):   # names of settings
+            chosen = getattr(self, key)
+            if chosen is None:
+                continue
+            if chosen not in table:
+                raise ValueError(f"{key}={chosen!r} is not one of {list(table)} (or None)")
+            for name, value in table[chosen].items():
                 if getattr(self, name) != value:
-                    raise ValueError(f"protocol={self.protocol!r} uses {name}={value!r}, "
-                                     f"but {name}={getattr(self, name)!r} was given; drop one of the two")
-        if self.robotarium is not None:
-            if self.robotarium not in ROBOTARIUM_SETTINGS:
-                raise ValueError(f"robotarium={self.robotarium!r} is not one of {list(ROBOTARIUM_SETTINGS)} (or None)")
-            for name, value in ROBOTARIUM_SETTINGS[self.robotarium].items():
-                if getattr(self, name) != value:
-                    raise ValueError(f"robotarium={self.robotarium!r} uses {name}={value!r}, "
+                    raise ValueError(f"{key}={chosen!r} uses {name}={value!r}, "
                                      f"but {name}={getattr(self, name)!r} was given; drop one of the two")
         physics.get_params(self.physics)
         ax0, ax1, ay0, ay1 = physics.get_params(self.physics).arena
