@@ -231,7 +231,10 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     def guard():
         return HangGuard(on_hang, hang_seconds) if hang_seconds else contextlib.nullcontext()
     spread = f" over {min(seeds, jax.local_device_count())} device(s)" if seed_batching == "devices" else ""
-    log(f"training {algo} on {scenario}: {num_updates} updates x {steps_per_update} env steps, "
+    trained_steps = num_updates * steps_per_update
+    rounded = (f" (--total-steps {int(total_steps):,} rounded to whole updates: {trained_steps:,} per seed)"
+               if trained_steps != int(total_steps) else "")
+    log(f"training {algo} on {scenario}: {num_updates} updates x {steps_per_update} env steps{rounded}, "
         f"{seeds} seed(s) in one program{spread}, checkpoint every {chunk} updates")
     t_start, resumed_at = time.perf_counter(), done
     # every program is compiled before the bar starts, so its rate, ETA and sps are the steady state's
@@ -242,8 +245,9 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
             run_fns[n].lower(runner).compile()
         if tester:
             tester.lower(runner["params"], test_keys).compile()
+    compile_seconds = time.perf_counter() - t_start
     if sizes:
-        log(f"compiled in {time.perf_counter() - t_start:.1f} s")
+        log(f"compiled in {compile_seconds:.1f} s")
     board = tensorboard_writer(out, lines)
     bar = tqdm(total=num_updates, initial=done, unit="update", disable=not progress, dynamic_ncols=True)
     plotted_at = -np.inf
@@ -319,13 +323,15 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         key = jax.random.PRNGKey(12345)
         trained = evaluate(env, greedy(env, cfg, first), eval_episodes, key)
         random = evaluate(env, None, eval_episodes, key)
-    result = dict(trained=trained, random=random, train_seconds=seconds,
-                  # this invocation's updates only (a resumed run trained the rest before)
-                  env_steps_per_s=seeds * (num_updates - resumed_at) * steps_per_update / max(seconds, 1e-9),
+    update_seconds = seconds - compile_seconds
+    result = dict(trained=trained, random=random, train_seconds=seconds, compile_seconds=compile_seconds,
+                  # this invocation's updates only (a resumed run trained the rest before), after compilation
+                  env_steps_per_s=seeds * (num_updates - resumed_at) * steps_per_update / max(update_seconds, 1e-9),
                   best_return=_nan_stat(np.mean, best_scores), best_return_per_seed=_json_floats(best_scores),
                   best_by="greedy test return" if test_episodes else "training return")
     atomic_write(out / "evaluation.json", json.dumps(result, indent=2))
-    log(f"trained in {seconds:.1f} s ({result['env_steps_per_s']:,.0f} env-steps/s including learning)")
+    log(f"trained in {seconds:.1f} s ({compile_seconds:.1f} s of it compiling; "
+        f"{result['env_steps_per_s']:,.0f} env-steps/s including learning, after compilation)")
     if eval_episodes:
         log(f"greedy return {trained['return']:.2f} vs random {random['return']:.2f}; "
             f"collisions {trained['collision_rate']:.1%}, out of bounds {trained['out_of_bounds_rate']:.1%}")

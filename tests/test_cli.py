@@ -90,20 +90,23 @@ def test_output_into_a_closed_pipe_ends_quietly(tmp_path, monkeypatch, capsys):
     assert capsys.readouterr().err == ""
 
 
-def test_train_writes_a_complete_run_folder(tmp_path):
+def test_train_writes_a_complete_run_folder(tmp_path, capsys):
     out = tmp_path / "run"
-    args = ["train", "--scenario", "Warehouse", "--total-steps", "2048", "--seeds", "2", "--out", str(out),
+    args = ["train", "--scenario", "Warehouse", "--total-steps", "2100", "--seeds", "2", "--out", str(out),
             "--hp", "num_envs=16", "--hp", "num_steps=16", "--hp", "hidden=32", "--test-episodes", "8",
             "--eval-episodes", "16"]
     code = main(args + ["--seed", "7"])
     assert code == 0
+    printed = capsys.readouterr().out          # the budget is whole updates of 16 x 16 env steps, and says so
+    assert "(--total-steps 2,100 rounded to whole updates: 2,048 per seed)" in printed
+    assert "s of it compiling;" in printed and "after compilation)" in printed
     for name in ("config.json", "metrics.jsonl", "learning_curve.png", "params.npz", "evaluation.json"):
         assert (out / name).exists(), name
     assert not list(out.glob("*.tmp*"))  # atomic writes leave no temporaries
     events = list((out / "tensorboard").glob("events.out.tfevents.*"))   # tensorboardX is in the test extra
     assert events and b"train/return_mean" in events[0].read_bytes() and b"train/sps" in events[0].read_bytes()
     config = json.loads((out / "config.json").read_text())
-    assert config["algo"] == "ippo" and config["algorithm"]["total_timesteps"] == 2048 and config["seed"] == 7
+    assert config["algo"] == "ippo" and config["algorithm"]["total_timesteps"] == 2100 and config["seed"] == 7
     assert config["scenario"] == "warehouse"     # MARBLER's name, stored canonical (evaluate's paper column finds it)
     assert main(args + ["--seed", "8", "--resume"]) == 2      # a resume must keep the run's seed
     # a resume needs no more than the folder: scenario, algorithm, seeds and settings come from config.json
