@@ -165,14 +165,23 @@ def _list(args) -> int:
             print(textwrap.fill(plain(docs.get(field.name, "")), width=110, initial_indent=" " * (indent + 4),
                                 subsequent_indent=" " * (indent + 4)))
 
+    from marbler_jax.registry import canonical_name
+
+    if args.scenario is not None:            # one scenario: its config, every key with its meaning
+        scenario_class(args.scenario)       # an unknown name is one clear error
+        names, args.verbose = [canonical_name(args.scenario)], True
+    else:
+        names = marbler_jax.registered()
     print("scenarios:")
-    for name in marbler_jax.registered():
+    for name in names:
         env = marbler_jax.make(name)
         print(f"  {name}: {env.num_agents} robots, obs_dim {env.obs_dim}, {env.num_actions} actions, "
               f"{env.max_steps} steps per episode -- "
               f"{first_line(importlib.import_module(scenario_class(name).__module__).__doc__)}")
         if args.verbose:
             print_fields(env.config)
+    if args.scenario is not None:
+        return 0
     print("algorithms (marbler-jax train --algo" + (", with the settings of each one's recipe):" if args.verbose else "):"))
     for algo, summary in ALGORITHM_SUMMARIES.items():
         print(f"  {algo}: {summary}")
@@ -662,6 +671,8 @@ def build_parser() -> argparse.ArgumentParser:
     roll.add_argument("--gif", default="", help="write a GIF of env 0 to this path")
     roll.set_defaults(func=_rollout)
     lst = sub.add_parser("list", help="scenarios, sizes and default config")
+    lst.add_argument("scenario", nargs="?", default=None,
+                     help="only this scenario, with every config key, its default and its meaning")
     lst.add_argument("-v", "--verbose", action="store_true", help="print every config key, its default and its meaning")
     lst.set_defaults(func=_list)
     tr = sub.add_parser("train", help="train an algorithm on a scenario (writes a run folder)",

@@ -236,6 +236,12 @@ def test_list_verbose_explains_every_config_key(capsys):
     assert "      num_prey = 6\n          prey per episode.\n" in out
     assert "      y_min = -0.9\n          smallest waypoint y [m]" in out
     assert "``" not in out and ":func:" not in out
+    # list SCENARIO: that scenario alone, every key explained (MARBLER's names accepted)
+    assert main(["list", "pcp"]) == 0
+    one = capsys.readouterr().out
+    assert "      num_prey = 6\n          prey per episode.\n" in one
+    assert "warehouse" not in one and "algorithms" not in one
+    assert main(["list", "no_such"]) == 2 and "unknown scenario 'no_such'" in capsys.readouterr().err
 
 
 def test_every_command_that_reads_a_run_defaults_to_the_same_checkpoint(tmp_path):
