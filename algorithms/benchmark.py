@@ -253,19 +253,49 @@ def remaining_steps(plan: CellPlan, seeds: int) -> int:
     return round(plan.steps * seeds * (plan.updates - done) / plan.updates)
 
 
-def describe_plan(plans: list[CellPlan], seeds: int, where: str) -> str:
-    """``benchmark --dry-run``'s text: one line per cell of ``where`` (the results file) and a summary."""
+def measured_rates(results: dict, device: str | None = None) -> dict[tuple[str, str], float]:
+    """Env steps per second (all seeds, updates only) each finished cell of ``results`` trained at (only the
+    cells trained on ``device`` alone, e.g. ``"cpu"``, where given)."""
+    rates = {}
+    for scenario, algos in results.get(ENV_NAME, {}).items():
+        for algo, runs in algos.items():
+            first = next(iter(runs.values()), {}).get(ABSOLUTE, {})
+            seconds = first.get("train_seconds", [0.0])[0]
+            if seconds > 0 and (device is None or first.get("device", [None])[0] == device):
+                steps = sum(run.get(ABSOLUTE, {}).get("env_steps", [0])[0] for run in runs.values())
+                rates[(scenario, algo)] = steps / seconds
+    return rates
+
+
+def describe_plan(plans: list[CellPlan], seeds: int, where: str, rates: dict | None = None,
+                  rates_from: str = "") -> str:
+    """``benchmark --dry-run``'s text: one line per cell of ``where`` (the results file) and a summary; with
+    ``rates`` (:func:`measured_rates` of the cells' earlier runs, from ``rates_from``) the time each cell and
+    the whole plan should take at those rates."""
+    rates = rates or {}
     counts = {status: sum(p.status == status for p in plans) for status in CELL_STATUSES}
     lines = [f"{where}: {len(plans)} cell(s), " + ", ".join(f"{n} {s}" for s, n in counts.items() if n)
              + f"; {sum(remaining_steps(p, seeds) for p in plans):,} env steps to train ({seeds} seed(s) per cell)"]
     width = max((len(p.scenario) for p in plans), default=0)
+    hours, unmeasured = 0.0, []
     for k, plan in enumerate(plans, 1):
         what = {"done": "done", "new": "new", "restart": "restart (its run folder is set aside)",
                 "resume": f"resume from update {plan.checkpoint} of {plan.updates}"}[plan.status]
         if plan.replaces:
             what += "; replaces its cell made with other settings"
+        left = remaining_steps(plan, seeds)
+        rate = rates.get((plan.scenario, plan.algo))
+        if left and rate:
+            hours += left / rate / 3600
+            what += f"; ~{left / rate / 3600:.1f} h"
+        elif left:
+            unmeasured.append(f"{plan.scenario}/{plan.algo}")
         lines.append(f"{k:>3}/{len(plans)}  {plan.scenario:<{width}}  {plan.algo:<7}  {plan.steps:>12,} steps/seed  "
                      + what)
+    if hours:
+        lines.append(f"estimated {hours:.1f} h of updates at the rates its cells trained at in {rates_from} (on this "
+                     "kind of device; compilation, tests and evaluation add a few %)"
+                     + (f"; no measurement for {', '.join(unmeasured)}" if unmeasured else ""))
     return "\n".join(lines)
 
 
@@ -395,6 +425,6 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
     return results
 
 
-__all__ = ["run_benchmark", "publish_policy", "POLICIES", "plan_cells", "describe_plan", "CellPlan", "CELL_STATUSES", "load_results", "add_cell",
+__all__ = ["run_benchmark", "publish_policy", "POLICIES", "plan_cells", "describe_plan", "measured_rates", "CellPlan", "CELL_STATUSES", "load_results", "add_cell",
            "finished_cells", "grid", "results_name", "PAPER_ALGOS", "PAPER_SCENARIOS", "JAXROBOTARIUM_SCENARIOS",
            "ENV_NAME"]

@@ -287,11 +287,17 @@ def _benchmark(args) -> int:
     if args.dry_run:
         if args.coordinator:
             raise ValueError("--dry-run shows one process's cells: give --shard I/N instead of --coordinator")
-        from .benchmark import describe_plan, plan_cells, results_name
+        from .benchmark import DEFAULT_RESULTS, describe_plan, load_results, measured_rates, plan_cells, results_name
 
         plans = plan_cells(args.out, args.algos, args.scenarios, args.seeds, args.total_steps, args.test_episodes,
                            args.seed, *shard, env_overrides=env_overrides, hp_overrides=hp_overrides)
-        print(describe_plan(plans, args.seeds, str(Path(args.out) / results_name(*shard))))
+        # the rates of the folder's own earlier cells, else those of the recipes' table
+        sources = [Path(args.out), Path(DEFAULT_RESULTS[None])]
+        source = next((p for p in sources if p.is_dir() and list(p.glob("results*.json"))), None)
+        import jax
+
+        rates = measured_rates(load_results(source), jax.devices()[0].device_kind) if source else {}
+        print(describe_plan(plans, args.seeds, str(Path(args.out) / results_name(*shard)), rates, str(source)))
         return 0
     if args.coordinator:
         if args.shard:

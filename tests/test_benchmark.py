@@ -28,6 +28,24 @@ def _runs(rewards_per_run, best_test=None, steps=(100, 200), recipe=None):
     return runs
 
 
+def test_dry_run_estimates_time_from_the_rates_cells_trained_at():
+    """``--dry-run``: each cell's time at the rate the same cell trained at on this kind of device (two runs x
+    200 env steps in 10 s: 40 env-steps/s), the unmeasured cells named."""
+    runs = _runs([[1.0], [2.0]])
+    for run in runs.values():
+        run[ABSOLUTE]["device"] = ["cpu"]
+    gpu = _runs([[1.0]])
+    gpu["run_0"][ABSOLUTE]["device"] = ["NVIDIA H100"]
+    results = {ENV_NAME: {"warehouse": {"vdn": runs, "qmix": gpu}}}
+    rates = benchmark.measured_rates(results, "cpu")
+    assert rates == {("warehouse", "vdn"): 40.0}
+    plans = [benchmark.CellPlan("warehouse", algo, {}, {}, 72_000, "d", 10, "new") for algo in ("vdn", "qmix")]
+    text = benchmark.describe_plan(plans, 2, "x/results.json", rates, "results/old").splitlines()
+    assert text[1].endswith("new; ~1.0 h") and text[2].endswith("new")          # 144,000 env steps at 40/s
+    assert text[-1].startswith("estimated 1.0 h of updates at the rates its cells trained at in results/old")
+    assert text[-1].endswith("no measurement for warehouse/qmix")
+
+
 def test_results_files_merge_and_name_their_cells(tmp_path):
     a = {ENV_NAME: {"warehouse": {"vdn": _runs([[1.0]])}}}
     b = {ENV_NAME: {"warehouse": {"qmix": _runs([[2.0]])}, "predator_capture_prey": {"vdn": _runs([[3.0]])}}}
