@@ -40,6 +40,7 @@ from .checkpoints import latest_step
 from .driver import (ALGORITHMS, TESTS_FILE, atomic_write, build_config, changed_settings, has_setting,
                      make_tester, run_config, seed_best_scores, train)
 from .recipes import recipe, settings_digest
+from .writer_lock import writer_lock
 from marbler_jax.registry import canonical_name
 from marbler_jax.scenarios.base import merge_settings
 
@@ -379,52 +380,53 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
         raise ValueError(f"{path} holds {cells} made with other settings; this run would replace "
                          f"{'it' if redo == 1 else 'them'}: give another --out (e.g. for a smoke run), or --force")
     out.mkdir(parents=True, exist_ok=True)
-    log(f"benchmark: {len(plans)} cell(s) for this process, {len(plans) - len(todo)} already in {path}"
-        + (f"; {redo} of its cells were made with other settings and train again" if redo else ""))
-    spent_steps, spent_seconds = 0, 0.0
-    budgets = [plan.steps * seeds for plan in todo]
-    results = json.loads(path.read_text()) if path.exists() else {}
-    for i, plan in enumerate(todo):
-        k = len(plans) - len(todo) + i + 1
-        scenario, algo, env_settings, steps = plan.scenario, plan.algo, plan.env_settings, plan.steps
-        hp = dict(plan.hp)
-        if devices > 1:
-            hp["learner_devices"] = devices
-        env = marbler_jax.make(scenario, **env_settings)
-        cfg = build_config(algo, dict(hp, total_timesteps=steps))
-        eta = f", ETA {sum(budgets[i:]) * spent_seconds / spent_steps / 3600:.1f} h" if spent_steps else ""
-        log(f"cell {k}/{len(plans)}: {algo} on {scenario}, {seeds} seed(s) x {steps:,} env steps{eta}")
-        run = out / "runs" / scenario / algo
-        if plan.status == "restart":
-            log(f"{run} holds a run with other settings: moved to {set_aside(run)}")
-        resume = plan.status != "restart" and (run / "config.json").exists()
-        clock = WallClock(run, resume, jax.devices()[0].device_kind)
+    with writer_lock(path.with_name(path.name + ".lock"), f"results file {path}"):     # one writer at a time
+        log(f"benchmark: {len(plans)} cell(s) for this process, {len(plans) - len(todo)} already in {path}"
+            + (f"; {redo} of its cells were made with other settings and train again" if redo else ""))
+        spent_steps, spent_seconds = 0, 0.0
+        budgets = [plan.steps * seeds for plan in todo]
+        results = json.loads(path.read_text()) if path.exists() else {}
+        for i, plan in enumerate(todo):
+            k = len(plans) - len(todo) + i + 1
+            scenario, algo, env_settings, steps = plan.scenario, plan.algo, plan.env_settings, plan.steps
+            hp = dict(plan.hp)
+            if devices > 1:
+                hp["learner_devices"] = devices
+            env = marbler_jax.make(scenario, **env_settings)
+            cfg = build_config(algo, dict(hp, total_timesteps=steps))
+            eta = f", ETA {sum(budgets[i:]) * spent_seconds / spent_steps / 3600:.1f} h" if spent_steps else ""
+            log(f"cell {k}/{len(plans)}: {algo} on {scenario}, {seeds} seed(s) x {steps:,} env steps{eta}")
+            run = out / "runs" / scenario / algo
+            if plan.status == "restart":
+                log(f"{run} holds a run with other settings: moved to {set_aside(run)}")
+            resume = plan.status != "restart" and (run / "config.json").exists()
+            clock = WallClock(run, resume, jax.devices()[0].device_kind)
 
-        def chunk_saved(update):
-            clock.save()
-            if on_chunk is not None:
-                on_chunk(update)
+            def chunk_saved(update):
+                clock.save()
+                if on_chunk is not None:
+                    on_chunk(update)
 
-        train(scenario, algo, steps, seeds, run, env_overrides=env_settings, hp=hp, eval_episodes=0,
-              checkpoint_every=max(1, plan.updates // eval_points), resume=resume, seed=seed,
-              progress=progress, log=log, test_episodes=test_episodes, on_chunk=chunk_saved)
-        greedy = ALGORITHMS[algo][2]
-        runs = cell_runs(run, env, lambda p: greedy(env, cfg, p), seeds, absolute_factor * test_episodes,
-                         jax.random.PRNGKey(seed + 2024), plan.digest)
-        seconds = clock.save()
-        for entry in runs.values():
-            entry[ABSOLUTE]["wall_seconds"] = [round(seconds, 1)]
-            entry[ABSOLUTE]["device"] = [clock.device()]
-        results = add_cell(path, scenario, algo, runs)
-        publish_policy(run, out / POLICIES / f"{scenario}-{algo}")
-        spent_steps += steps * seeds
-        spent_seconds += seconds
-        best = max(runs.values(), key=lambda r: r[ABSOLUTE]["best_test_return"][0])[ABSOLUTE]["reward"]
-        log(f"cell {k}/{len(plans)} done in {seconds / 60:.1f} min: best seed's reward {np.mean(best):.2f} "
-            f"over {len(best)} episodes -> {path}")
-    return results
+            train(scenario, algo, steps, seeds, run, env_overrides=env_settings, hp=hp, eval_episodes=0,
+                  checkpoint_every=max(1, plan.updates // eval_points), resume=resume, seed=seed,
+                  progress=progress, log=log, test_episodes=test_episodes, on_chunk=chunk_saved)
+            greedy = ALGORITHMS[algo][2]
+            runs = cell_runs(run, env, lambda p: greedy(env, cfg, p), seeds, absolute_factor * test_episodes,
+                             jax.random.PRNGKey(seed + 2024), plan.digest)
+            seconds = clock.save()
+            for entry in runs.values():
+                entry[ABSOLUTE]["wall_seconds"] = [round(seconds, 1)]
+                entry[ABSOLUTE]["device"] = [clock.device()]
+            results = add_cell(path, scenario, algo, runs)
+            publish_policy(run, out / POLICIES / f"{scenario}-{algo}")
+            spent_steps += steps * seeds
+            spent_seconds += seconds
+            best = max(runs.values(), key=lambda r: r[ABSOLUTE]["best_test_return"][0])[ABSOLUTE]["reward"]
+            log(f"cell {k}/{len(plans)} done in {seconds / 60:.1f} min: best seed's reward {np.mean(best):.2f} "
+                f"over {len(best)} episodes -> {path}")
+        return results
 
 
-__all__ = ["run_benchmark", "publish_policy", "POLICIES", "plan_cells", "describe_plan", "measured_rates", "CellPlan", "CELL_STATUSES", "load_results", "add_cell",
-           "finished_cells", "grid", "results_name", "PAPER_ALGOS", "PAPER_SCENARIOS", "JAXROBOTARIUM_SCENARIOS",
+__all__ = ["run_benchmark", "publish_policy", "POLICIES", "plan_cells", "describe_plan", "measured_rates", "CellPlan",
+           "CELL_STATUSES", "load_results", "add_cell", "finished_cells", "grid", "results_name", "PAPER_ALGOS", "PAPER_SCENARIOS", "JAXROBOTARIUM_SCENARIOS",
            "ENV_NAME"]

@@ -837,6 +837,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    from .writer_lock import Busy
+
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     args.argv = argv
@@ -845,6 +847,9 @@ def main(argv=None) -> int:
     except (ValueError, TypeError) as err:
         print(f"marbler-jax: error: {err}", file=sys.stderr)
         return 2
+    except Busy as err:                     # another process writes the same run folder / results file
+        print(f"marbler-jax: {err}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"marbler-jax: interrupted{_resume_hint(args)}", file=sys.stderr)
         return 130

@@ -31,6 +31,7 @@ from . import checkpoints, ippo, mappo, qmix, vdn
 from .checkpoints import atomic_write
 from .data_parallel import over_devices
 from .hang_guard import HangGuard, hang_message
+from .writer_lock import writer_lock
 from marbler_jax.rollout import batched_rollout, episode_stats, first_episode_metrics, make_rollout
 
 # name -> (config class, make_train(env, cfg), greedy_policy(env, cfg, params))
@@ -97,6 +98,8 @@ def evaluate(env, policy, episodes: int, key) -> dict:
 
 
 # How ``train`` maps a function over the leading seed axis of its runner state.
+LOCK_FILE = ".lock"
+"""The run folder's writer lock (:mod:`marbler_jax_rl.writer_lock`): one ``train`` per folder at a time."""
 SEED_BATCHING = {"vmap": lambda fn, xs: jax.vmap(fn)(xs), "map": jax.lax.map, "devices": over_devices}
 
 
@@ -188,154 +191,156 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     elif checkpoint_dir.exists() and any(checkpoint_dir.iterdir()):
         raise ValueError(f"{out} already holds checkpoints; pass --resume to continue or choose a new --out")
     out.mkdir(parents=True, exist_ok=True)      # only once every setting is valid: a refused run leaves nothing
-    atomic_write(out / "config.json", config_json)
+    with writer_lock(out / LOCK_FILE, f"run folder {out}"):     # one writer at a time
+        atomic_write(out / "config.json", config_json)
 
-    trainer = make_train(env, cfg)
-    num_updates, steps_per_update = trainer.num_updates, trainer.steps_per_update
-    runner = jax.jit(lambda keys: over_seeds(trainer.init, keys))(jax.random.split(jax.random.PRNGKey(seed), seeds))
-    options = ocp.CheckpointManagerOptions(max_to_keep=keep, enable_async_checkpointing=False)
-    manager = ocp.CheckpointManager(checkpoint_dir, options=options)
-    best_manager = ocp.CheckpointManager(out / "best", options=ocp.CheckpointManagerOptions(
-        max_to_keep=1, enable_async_checkpointing=False))
-    lines, test_lines, done = [], [], 0
-    step, restored = checkpoints.restore_latest(manager, runner, warn=log) if resume else (None, None)
-    if step is not None:
-        done = int(step)
-        # laid out like a fresh runner (one device, the seeds spread over devices, or as a learner split over
-        # devices lays out its state), so the resumed run executes the very programs a fresh one compiles,
-        # and every chunk the one compiled up front
-        runner = jax.tree_util.tree_map(lambda saved, fresh: jax.device_put(np.asarray(saved), fresh.sharding),
-                                        restored, runner)
-        lines = _lines_upto(out / "metrics.jsonl", done)
-        test_lines = _lines_upto(out / TESTS_FILE, done)
-        log(f"resuming from update {done} of {num_updates}")
-    best_scores = seed_best_scores(lines, seeds, tested=bool(test_episodes))
-    best_params = None
-    if resume:
-        try:
-            best_params = checkpoints.restore_latest(best_manager, warn=log)[1]
-        except ValueError:           # damaged and moved aside: every seed's best starts anew
-            log("warning: the best checkpoint starts anew from the next test")
-        if best_params is None:
-            best_scores = np.full(seeds, -np.inf)
-        else:
-            best_params = jax.tree_util.tree_map(np.asarray, best_params)
-    tester = make_tester(env, lambda p: greedy(env, cfg, p), test_episodes, over_seeds) if test_episodes else None
-    test_keys = jax.random.split(jax.random.PRNGKey(seed + 7919), seeds)   # apart from the training keys
-    chunk = checkpoint_every or max(1, num_updates // 10)
-    run_fns = {}
-    if on_hang is None:
-        def on_hang(idle):
-            log(f"warning: {hang_message(idle)}; stop this process and rerun with --resume (no checkpoint is lost)")
+        trainer = make_train(env, cfg)
+        num_updates, steps_per_update = trainer.num_updates, trainer.steps_per_update
+        runner = jax.jit(lambda keys: over_seeds(trainer.init, keys))(jax.random.split(jax.random.PRNGKey(seed), seeds))
+        options = ocp.CheckpointManagerOptions(max_to_keep=keep, enable_async_checkpointing=False)
+        manager = ocp.CheckpointManager(checkpoint_dir, options=options)
+        best_manager = ocp.CheckpointManager(out / "best", options=ocp.CheckpointManagerOptions(
+            max_to_keep=1, enable_async_checkpointing=False))
+        lines, test_lines, done = [], [], 0
+        step, restored = checkpoints.restore_latest(manager, runner, warn=log) if resume else (None, None)
+        if step is not None:
+            done = int(step)
+            # laid out like a fresh runner (one device, the seeds spread over devices, or as a learner split over
+            # devices lays out its state), so the resumed run executes the very programs a fresh one compiles,
+            # and every chunk the one compiled up front
+            runner = jax.tree_util.tree_map(lambda saved, fresh: jax.device_put(np.asarray(saved), fresh.sharding),
+                                            restored, runner)
+            lines = _lines_upto(out / "metrics.jsonl", done)
+            test_lines = _lines_upto(out / TESTS_FILE, done)
+            log(f"resuming from update {done} of {num_updates}")
+        best_scores = seed_best_scores(lines, seeds, tested=bool(test_episodes))
+        best_params = None
+        if resume:
+            try:
+                best_params = checkpoints.restore_latest(best_manager, warn=log)[1]
+            except ValueError:           # damaged and moved aside: every seed's best starts anew
+                log("warning: the best checkpoint starts anew from the next test")
+            if best_params is None:
+                best_scores = np.full(seeds, -np.inf)
+            else:
+                best_params = jax.tree_util.tree_map(np.asarray, best_params)
+        tester = make_tester(env, lambda p: greedy(env, cfg, p), test_episodes, over_seeds) if test_episodes else None
+        test_keys = jax.random.split(jax.random.PRNGKey(seed + 7919), seeds)   # apart from the training keys
+        chunk = checkpoint_every or max(1, num_updates // 10)
+        run_fns = {}
+        if on_hang is None:
+            def on_hang(idle):
+                log(f"warning: {hang_message(idle)}; stop this process and rerun with --resume (no checkpoint is lost)")
 
-    def guard():
-        return HangGuard(on_hang, hang_seconds) if hang_seconds else contextlib.nullcontext()
-    spread = f" over {min(seeds, jax.local_device_count())} device(s)" if seed_batching == "devices" else ""
-    trained_steps = num_updates * steps_per_update
-    rounded = (f" (--total-steps {int(total_steps):,} rounded to whole updates: {trained_steps:,} per seed)"
-               if trained_steps != int(total_steps) else "")
-    log(f"training {algo} on {scenario}: {num_updates} updates x {steps_per_update} env steps{rounded}, "
-        f"{seeds} seed(s) in one program{spread}, checkpoint every {chunk} updates")
-    t_start, resumed_at = time.perf_counter(), done
-    # every program is compiled before the bar starts, so its rate, ETA and sps are the steady state's
-    sizes = sorted({min(chunk, num_updates - done), (num_updates - done) % chunk} - {0})
-    with guard():
-        for n in sizes:
-            run_fns[n] = jax.jit(lambda r, n=n: over_seeds(lambda s: trainer.run(s, n), r))
-            run_fns[n].lower(runner).compile()
-        if tester:
-            tester.lower(runner["params"], test_keys).compile()
-    compile_seconds = time.perf_counter() - t_start
-    if sizes:
-        log(f"compiled in {compile_seconds:.1f} s")
-    board = tensorboard_writer(out, lines)
-    bar = tqdm(total=num_updates, initial=done, unit="update", disable=not progress, dynamic_ncols=True)
-    plotted_at = -np.inf
-    while done < num_updates:
-        n = min(chunk, num_updates - done)
-        t0 = time.perf_counter()
+        def guard():
+            return HangGuard(on_hang, hang_seconds) if hang_seconds else contextlib.nullcontext()
+        spread = f" over {min(seeds, jax.local_device_count())} device(s)" if seed_batching == "devices" else ""
+        trained_steps = num_updates * steps_per_update
+        rounded = (f" (--total-steps {int(total_steps):,} rounded to whole updates: {trained_steps:,} per seed)"
+                   if trained_steps != int(total_steps) else "")
+        log(f"training {algo} on {scenario}: {num_updates} updates x {steps_per_update} env steps{rounded}, "
+            f"{seeds} seed(s) in one program{spread}, checkpoint every {chunk} updates")
+        t_start, resumed_at = time.perf_counter(), done
+        # every program is compiled before the bar starts, so its rate, ETA and sps are the steady state's
+        sizes = sorted({min(chunk, num_updates - done), (num_updates - done) % chunk} - {0})
         with guard():
-            runner, metrics = jax.block_until_ready(run_fns[n](runner))
-        chunk_s = time.perf_counter() - t0
-        with guard():
-            episodes = jax.tree_util.tree_map(np.asarray, tester(runner["params"], test_keys)) if tester else None
-        test = episodes["reward"].mean(-1) if tester else None
-        test_mean = _nan_stat(np.nanmean, test) if tester else None
-        metrics = jax.tree_util.tree_map(np.asarray, metrics)
-        for i in range(n):
-            ret = metrics["return"][:, i]
-            lines.append(json.dumps(dict(
-                update=done + i + 1, env_steps=(done + i + 1) * steps_per_update,
-                return_mean=_nan_stat(np.nanmean, ret), return_std=_nan_stat(np.nanstd, ret),
-                length=_nan_stat(np.nanmean, metrics["length"][:, i]),
-                collision_rate=_nan_stat(np.nanmean, metrics["collision_rate"][:, i]),
-                out_of_bounds_rate=_nan_stat(np.nanmean, metrics["out_of_bounds_rate"][:, i]),
-                sps=seeds * n * steps_per_update / chunk_s)))
-        with warnings.catch_warnings():           # a seed that finished no episode in the chunk: NaN
-            warnings.simplefilter("ignore", RuntimeWarning)
-            chunk_returns = np.nanmean(metrics["return"], axis=1)
-        # the parameters at the chunk's end (after its last update) are scored: greedy test, else training return
-        scores = test if tester else chunk_returns
-        last = json.loads(lines[-1])
-        if tester:
-            last.update(test_return_mean=test_mean, test_return_std=_nan_stat(np.nanstd, test))
-        last[SEED_SCORE_KEY[bool(tester)]] = _json_floats(scores)
-        lines[-1] = json.dumps(last)
+            for n in sizes:
+                run_fns[n] = jax.jit(lambda r, n=n: over_seeds(lambda s: trainer.run(s, n), r))
+                run_fns[n].lower(runner).compile()
+            if tester:
+                tester.lower(runner["params"], test_keys).compile()
+        compile_seconds = time.perf_counter() - t_start
+        if sizes:
+            log(f"compiled in {compile_seconds:.1f} s")
+        board = tensorboard_writer(out, lines)
+        bar = tqdm(total=num_updates, initial=done, unit="update", disable=not progress, dynamic_ncols=True)
+        plotted_at = -np.inf
+        while done < num_updates:
+            n = min(chunk, num_updates - done)
+            t0 = time.perf_counter()
+            with guard():
+                runner, metrics = jax.block_until_ready(run_fns[n](runner))
+            chunk_s = time.perf_counter() - t0
+            with guard():
+                episodes = jax.tree_util.tree_map(np.asarray, tester(runner["params"], test_keys)) if tester else None
+            test = episodes["reward"].mean(-1) if tester else None
+            test_mean = _nan_stat(np.nanmean, test) if tester else None
+            metrics = jax.tree_util.tree_map(np.asarray, metrics)
+            for i in range(n):
+                ret = metrics["return"][:, i]
+                lines.append(json.dumps(dict(
+                    update=done + i + 1, env_steps=(done + i + 1) * steps_per_update,
+                    return_mean=_nan_stat(np.nanmean, ret), return_std=_nan_stat(np.nanstd, ret),
+                    length=_nan_stat(np.nanmean, metrics["length"][:, i]),
+                    collision_rate=_nan_stat(np.nanmean, metrics["collision_rate"][:, i]),
+                    out_of_bounds_rate=_nan_stat(np.nanmean, metrics["out_of_bounds_rate"][:, i]),
+                    sps=seeds * n * steps_per_update / chunk_s)))
+            with warnings.catch_warnings():           # a seed that finished no episode in the chunk: NaN
+                warnings.simplefilter("ignore", RuntimeWarning)
+                chunk_returns = np.nanmean(metrics["return"], axis=1)
+            # the parameters at the chunk's end (after its last update) are scored: greedy test, else training return
+            scores = test if tester else chunk_returns
+            last = json.loads(lines[-1])
+            if tester:
+                last.update(test_return_mean=test_mean, test_return_std=_nan_stat(np.nanstd, test))
+            last[SEED_SCORE_KEY[bool(tester)]] = _json_floats(scores)
+            lines[-1] = json.dumps(last)
+            if board is not None:
+                log_scalars(board, lines[-n:])
+            done += n
+            # saved as host arrays: no device layout in the checkpoint, so a run trained on several devices
+            # (learner_devices) restores anywhere (evaluate, export, resume)
+            host = jax.tree_util.tree_map(np.asarray, runner)
+            improved = np.asarray(scores) > best_scores            # NaN never improves
+            if improved.any():
+                best_scores = np.where(improved, scores, best_scores)
+                best_params = keep_improved(improved, host["params"], best_params)
+                if done in best_manager.all_steps():              # written before a kill, now written again
+                    best_manager.delete(done)
+                checkpoints.save(best_manager, done, best_params)
+            atomic_write(out / "metrics.jsonl", "\n".join(lines) + "\n")
+            if tester:
+                rounded = {name: [_json_floats(np.round(np.asarray(row, float), 5)) for row in values]
+                           for name, values in episodes.items()}
+                test_lines.append(json.dumps(dict(update=done, env_steps=done * steps_per_update, episodes=rounded)))
+                atomic_write(out / TESTS_FILE, "\n".join(test_lines) + "\n")
+            if done == num_updates or time.perf_counter() - plotted_at >= PLOT_EVERY_S:
+                plot_learning_curve(out / "metrics.jsonl", out / "learning_curve.png", f"{algo} on {scenario}")
+                plotted_at = time.perf_counter()
+            checkpoints.save(manager, done, host)    # last: the checkpoint (with its manifest) commits the chunk
+            recent = [json.loads(line)["return_mean"] for line in lines[-n:]]
+            recent = [r for r in recent if r is not None]
+            bar.update(n)
+            bar.set_postfix(ret=f"{recent[-1]:.2f}" if recent else "n/a",
+                            **({"test": f"{test_mean:.2f}"} if test_mean is not None else {}),
+                            sps=f"{seeds * n * steps_per_update / chunk_s:,.0f}")
+            if on_chunk is not None:
+                on_chunk(done)
+        bar.close()
         if board is not None:
-            log_scalars(board, lines[-n:])
-        done += n
-        # saved as host arrays: no device layout in the checkpoint, so a run trained on several devices
-        # (learner_devices) restores anywhere (evaluate, export, resume)
-        host = jax.tree_util.tree_map(np.asarray, runner)
-        improved = np.asarray(scores) > best_scores            # NaN never improves
-        if improved.any():
-            best_scores = np.where(improved, scores, best_scores)
-            best_params = keep_improved(improved, host["params"], best_params)
-            if done in best_manager.all_steps():              # written before a kill, now written again
-                best_manager.delete(done)
-            checkpoints.save(best_manager, done, best_params)
-        atomic_write(out / "metrics.jsonl", "\n".join(lines) + "\n")
-        if tester:
-            test_lines.append(json.dumps(dict(update=done, env_steps=done * steps_per_update, episodes={
-                name: [_json_floats(np.round(np.asarray(row, float), 5)) for row in values] for name, values in episodes.items()})))
-            atomic_write(out / TESTS_FILE, "\n".join(test_lines) + "\n")
-        if done == num_updates or time.perf_counter() - plotted_at >= PLOT_EVERY_S:
-            plot_learning_curve(out / "metrics.jsonl", out / "learning_curve.png", f"{algo} on {scenario}")
-            plotted_at = time.perf_counter()
-        checkpoints.save(manager, done, host)    # last: the checkpoint (with its manifest) commits the chunk
-        recent = [json.loads(line)["return_mean"] for line in lines[-n:]]
-        recent = [r for r in recent if r is not None]
-        bar.update(n)
-        bar.set_postfix(ret=f"{recent[-1]:.2f}" if recent else "n/a",
-                        **({"test": f"{test_mean:.2f}"} if test_mean is not None else {}),
-                        sps=f"{seeds * n * steps_per_update / chunk_s:,.0f}")
-        if on_chunk is not None:
-            on_chunk(done)
-    bar.close()
-    if board is not None:
-        board.close()
-    seconds = time.perf_counter() - t_start
-    params = runner["params"]
-    save_params(out / "params.npz", params)
-    trained = random = None
-    if eval_episodes:
-        first = jax.tree_util.tree_map(lambda x: x[0], params)
-        key = jax.random.PRNGKey(12345)
-        trained = evaluate(env, greedy(env, cfg, first), eval_episodes, key)
-        random = evaluate(env, None, eval_episodes, key)
-    update_seconds = seconds - compile_seconds
-    result = dict(trained=trained, random=random, train_seconds=seconds, compile_seconds=compile_seconds,
-                  # this invocation's updates only (a resumed run trained the rest before), after compilation
-                  env_steps_per_s=seeds * (num_updates - resumed_at) * steps_per_update / max(update_seconds, 1e-9),
-                  best_return=_nan_stat(np.mean, best_scores), best_return_per_seed=_json_floats(best_scores),
-                  best_by="greedy test return" if test_episodes else "training return")
-    atomic_write(out / "evaluation.json", json.dumps(result, indent=2))
-    log(f"trained in {seconds:.1f} s ({compile_seconds:.1f} s of it compiling; "
-        f"{result['env_steps_per_s']:,.0f} env-steps/s including learning, after compilation)")
-    if eval_episodes:
-        log(f"greedy return {trained['return']:.2f} vs random {random['return']:.2f}; "
-            f"collisions {trained['collision_rate']:.1%}, out of bounds {trained['out_of_bounds_rate']:.1%}")
-    return result
+            board.close()
+        seconds = time.perf_counter() - t_start
+        params = runner["params"]
+        save_params(out / "params.npz", params)
+        trained = random = None
+        if eval_episodes:
+            first = jax.tree_util.tree_map(lambda x: x[0], params)
+            key = jax.random.PRNGKey(12345)
+            trained = evaluate(env, greedy(env, cfg, first), eval_episodes, key)
+            random = evaluate(env, None, eval_episodes, key)
+        update_seconds = seconds - compile_seconds
+        result = dict(trained=trained, random=random, train_seconds=seconds, compile_seconds=compile_seconds,
+                      # this invocation's updates only (a resumed run trained the rest before), after compilation
+                      env_steps_per_s=seeds * (num_updates - resumed_at) * steps_per_update / max(update_seconds, 1e-9),
+                      best_return=_nan_stat(np.mean, best_scores), best_return_per_seed=_json_floats(best_scores),
+                      best_by="greedy test return" if test_episodes else "training return")
+        atomic_write(out / "evaluation.json", json.dumps(result, indent=2))
+        log(f"trained in {seconds:.1f} s ({compile_seconds:.1f} s of it compiling; "
+            f"{result['env_steps_per_s']:,.0f} env-steps/s including learning, after compilation)")
+        if eval_episodes:
+            log(f"greedy return {trained['return']:.2f} vs random {random['return']:.2f}; "
+                f"collisions {trained['collision_rate']:.1%}, out of bounds {trained['out_of_bounds_rate']:.1%}")
+        return result
 
 
 def run_config(scenario: str, algo: str, seeds: int, seed: int, env, cfg, test_episodes: int) -> dict:
