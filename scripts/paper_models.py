@@ -86,7 +86,10 @@ def _evaluate(args) -> None:
     sys.path.insert(0, str(REPO))
     from marbler_jax_rl.evaluate import evaluate_policy
 
-    loops = {"marbler-jax": {"protocol": "marbler"}, "robots-loop": {"protocol": "robots"}}
+    # MARBLER's protocol; the robots' loop; MARBLER's own settings with its robots' loop (`robotarium: True` in
+    # a scenario's config.yaml: the controller every iteration, rps 6bb184e, the zero first observation)
+    loops = {"marbler-jax": {"protocol": "marbler"}, "robots-loop": {"protocol": "robots"},
+             "marbler-robotarium-true": {"control_period": 1}}
     for scenario, algo, _, _ in models():
         for loop, env in loops.items():
             target = args.out / loop / f"{scenario}-{algo}.json"
@@ -264,6 +267,31 @@ def table_markdown(out: Path) -> str:
             digits = 1 if metric in ("collisions", "out_of_bounds", "steps") else 2
             cells.append(f"{_cell(a and a[metric], digits)} / {_cell(b and b[metric], digits)}")
         lines.append(f"| {scenario} | {algo} | " + " | ".join(cells) + " |")
+    lines += ["", "### Which loop the paper's numbers come from", "",
+              "MARBLER's `config.yaml` files switch the loop with `robotarium`: `False` (every 15 iterations, the "
+              "simulation setting) or `True` (every iteration, for the robots). Each model's reward in both, "
+              "emulated in marbler-jax with MARBLER's simulator and zero first observation, beside the paper's:", "",
+              "| scenario | algorithm | (c) paper | `robotarium: False` = (a) | `robotarium: True` | closer to the paper |",
+              "|---|---|---|---|---|---|"]
+    apart = {"False": [], "True": []}       # models whose two loops' CIs do not overlap, by the closer loop
+    for scenario, algo, _, _ in models():
+        a, t = (_episodes(out, loop, scenario, algo) for loop in ("marbler-jax", "marbler-robotarium-true"))
+        paper = PAPER.get(scenario, {}).get(algo, {}).get("reward")
+        which = "—"
+        if a is not None and t is not None and paper:
+            gaps = {"False": abs(np.mean(a["reward"]) - paper[0]), "True": abs(np.mean(t["reward"]) - paper[0])}
+            which = min(gaps, key=gaps.get)
+            (mean_a, half_a), (mean_t, half_t) = mean_ci(a["reward"]), mean_ci(t["reward"])
+            if abs(mean_a - mean_t) > half_a + half_t:
+                apart[which].append(f"{scenario} {algo}")
+                which = f"**{which}**"
+        lines.append(f"| {scenario} | {algo} | {f'{paper[0]:g} ± {paper[1]:g}' if paper else '—'} | "
+                     f"{_cell(a and a['reward'])} | {_cell(t and t['reward'])} | {which} |")
+    if apart["True"] or apart["False"]:
+        lines += ["", "Where the two loops' rewards are apart (CIs not overlapping; **bold**), the paper's value is "
+                      f"the `robotarium: True` one for {len(apart['True'])} model(s) "
+                      f"({', '.join(apart['True']) or 'none'}) and the `robotarium: False` one for "
+                      f"{len(apart['False'])} ({', '.join(apart['False']) or 'none'}); elsewhere the two loops' CIs overlap."]
     lines += ["", "### Collisions and boundary violations on today's robots: (d) marbler-jax, robots' loop / (e) rps "
               "v2, the bundle", "", "| scenario | algorithm | collisions % | out of bounds % |", "|---|---|---|---|"]
     for scenario, algo, _, _ in models():
