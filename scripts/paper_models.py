@@ -6,15 +6,18 @@ Material Transport and Arctic Transport) are imported with ``marbler-jax import`
 (a) in marbler-jax's ``marbler`` protocol (MARBLER's simulator, loop and first observation),
 (b) in MARBLER's own code (``scripts/marbler_oracle.py``, run by a Python with MARBLER's stack),
 (c) -- the paper's Table II value --,
-(d) in marbler-jax's robots' loop (controller and barrier every iteration, what a bundle runs),
+(d) in marbler-jax's robots' loop (today's robots: what a bundle deploys),
+(e) as a Robotarium bundle run by today's Robotarium simulator (rps v2),
+and in marbler-jax with MARBLER's settings but its ``robotarium: True`` loop (controller every iteration),
 
 each over ``--episodes`` episodes, and written as one JSON file per model and loop under ``--out``;
 ``table`` turns them into the Markdown table that RESULTS.md holds. Steps (each skips what is done):
 
     python scripts/paper_models.py import                       # policies/ from ../shared/marbler
-    python scripts/paper_models.py marbler --python .marbler-venv/bin/python   # (b), ~1 episode/s
-    python scripts/paper_models.py evaluate                     # (a) and (d)
-    python scripts/paper_models.py table --results-md RESULTS.md
+    python scripts/paper_models.py marbler --workers 2           # (b) in .marbler-venv, ~1 episode/s a process
+    python scripts/paper_models.py evaluate                     # (a), (d) and robotarium: True
+    python scripts/paper_models.py robotarium --episodes 30 --workers 2   # (e) in .rps-v2-venv
+    python scripts/paper_models.py table --results-md RESULTS.md --readme README.md
 """
 from __future__ import annotations
 
@@ -229,9 +232,9 @@ def table_markdown(out: Path) -> str:
         "",
         "```bash",
         "python scripts/paper_models.py import && python scripts/paper_models.py evaluate",
-        "python scripts/paper_models.py marbler --python .marbler-venv/bin/python --workers 2",
-        "python scripts/paper_models.py robotarium --python .rps-v2-venv/bin/python --episodes 30 --workers 2",
-        "python scripts/paper_models.py table --results-md RESULTS.md",
+        "python scripts/paper_models.py marbler --workers 2          # in .marbler-venv (its README says how)",
+        "python scripts/paper_models.py robotarium --episodes 30 --workers 2   # in the tests' .rps-v2-venv",
+        "python scripts/paper_models.py table --results-md RESULTS.md --readme README.md",
         "```",
         "",
         "### Reward",
@@ -301,15 +304,34 @@ def table_markdown(out: Path) -> str:
     return "\n".join(lines) + "\n"
 
 
+def summary_line(out: Path) -> str:
+    """The README's sentence on the paper's models: how many agree between marbler-jax and MARBLER's code."""
+    agree = total = 0
+    for scenario, algo, _, _ in models():
+        a, b = (_episodes(out, loop, scenario, algo) for loop in ("marbler-jax", "marbler"))
+        if a is not None and b is not None:
+            low, high = difference_ci(a["reward"], b["reward"])[1:]
+            agree, total = agree + (low <= 0 <= high), total + 1
+    return (f"MARBLER's own 16 paper models, imported with `marbler-jax import`, score the same in marbler-jax's "
+            f"`marbler` protocol as in MARBLER's code on {agree} of {total} models (95 % CI of the difference "
+            "contains 0; RESULTS.md, *The paper's own models*, with the robots' loop and rps v2 beside them).")
+
+
 def _table(args) -> None:
+    sys.path.insert(0, str(REPO))
+    from marbler_jax_rl.report import replace_block
+
     text = table_markdown(args.out)
     (args.out / "table.md").write_text(text)
+    command = "scripts/paper_models.py table"
     if args.results_md:
-        sys.path.insert(0, str(REPO))
-        from marbler_jax_rl.report import replace_block
-
         page = Path(args.results_md)
-        page.write_text(replace_block(page.read_text(), "paper-models", "scripts/paper_models.py table", text))
+        page.write_text(replace_block(page.read_text(), "paper-models", command, text))
+    if args.readme:
+        page = Path(args.readme)
+        if "<!-- begin paper-models-summary" not in page.read_text():
+            raise SystemExit(f"{page} has no paper-models-summary block: put its begin and end lines where it goes")
+        page.write_text(replace_block(page.read_text(), "paper-models-summary", command, summary_line(args.out)))
     print(text)
 
 
@@ -324,6 +346,7 @@ def main(argv=None):
                         help="a Python with MARBLER's stack (for `marbler`; default .marbler-venv) or with rps v2 (for "
                              "`robotarium`; default .rps-v2-venv, the test suite's)")
     parser.add_argument("--results-md", default=None, help="page whose paper-models block `table` rewrites")
+    parser.add_argument("--readme", default=None, help="page whose paper-models-summary block `table` rewrites")
     args = parser.parse_args(argv)
     if args.python is None:
         args.python = str(REPO / (".rps-v2-venv" if args.command == "robotarium" else ".marbler-venv") / "bin" / "python")
