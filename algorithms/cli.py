@@ -527,29 +527,21 @@ def _import(args) -> int:
 def _quickstart(args) -> int:
     from .driver import train
 
-    from marbler_jax.deploy.bundle import check_target, replace_folder
+    from marbler_jax.deploy.bundle import building, check_target
+
+    from .export import export_policy
+    from .recipes import settings
+    from .run import Run
 
     final = Path(args.out)
     check_target(final, "config.json", "quickstart run", args.force)
     if final.exists() and any(final.iterdir()):
         print(f"replacing the earlier run in {final} once this one has finished")
-    out = final.with_name(final.name + ".new")    # built beside it, swapped in at the end
-    if out.exists():
-        import shutil
-
-        shutil.rmtree(out)                          # an unfinished earlier attempt of ours
-    from .recipes import settings
-
-    env_overrides, hp, steps = settings("recipe", "simple_navigation", "ippo")    # what `train` would run
-    result = train("simple_navigation", "ippo", steps, 2, out, env_overrides=env_overrides, hp=hp)
-    gif = out / "episode.gif"
-    _episode_gif(out, gif)
-    from .export import export_policy
-
-    from .run import Run
-
-    export_policy(out, out / "policy", seed_index=Run.open(out).seed_index("best"), bundle=out / "robotarium")
-    replace_folder(out, final)
+    with building(final) as out:                   # built beside it under a name of its own, swapped in at the end
+        env_overrides, hp, steps = settings("recipe", "simple_navigation", "ippo")    # what `train` would run
+        result = train("simple_navigation", "ippo", steps, 2, out, env_overrides=env_overrides, hp=hp)
+        _episode_gif(out, out / "episode.gif")
+        export_policy(out, out / "policy", seed_index=Run.open(out).seed_index("best"), bundle=out / "robotarium")
     out = final
     better = result["trained"]["return"] > result["random"]["return"]
     print("\nquickstart outputs:")

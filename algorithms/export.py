@@ -9,8 +9,6 @@ place, so an interrupted export never leaves a half-written policy.
 from __future__ import annotations
 
 import json
-import shutil
-from pathlib import Path
 
 import jax
 import numpy as np
@@ -19,7 +17,7 @@ from .driver import flatten_params
 from .run import DEFAULT_CHECKPOINT, Run
 from .networks import QAgent
 from marbler_jax.control_loop import ROBOTS_CONTROL_PERIOD
-from marbler_jax.deploy.bundle import check_target, deployment_settings, replace_folder, write_bundle
+from marbler_jax.deploy.bundle import building, check_target, deployment_settings, write_bundle
 from marbler_jax.numpy_policy import FORMAT, SPEC_FILE, NumpyPolicy, file_sha256
 
 
@@ -62,15 +60,11 @@ def write_policy(spec: dict, tensors: dict, out, force: bool = False) -> NumpyPo
     check_target(out, SPEC_FILE, "policy", force)
     spec = dict(spec, tensors={name: f"{name.replace('.', '_')}.npy" for name in tensors})
     policy = NumpyPolicy(spec, tensors)
-    out = Path(out)
-    tmp = out.with_name(out.name + ".tmp")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    for name, array in tensors.items():
-        np.save(tmp / spec["tensors"][name], array, allow_pickle=False)
-    spec["sha256"] = {file: file_sha256(tmp / file) for file in spec["tensors"].values()}
-    np.save(tmp / SPEC_FILE, np.array(json.dumps(spec, indent=1)), allow_pickle=False)
-    replace_folder(tmp, out)
+    with building(out) as tmp:
+        for name, array in tensors.items():
+            np.save(tmp / spec["tensors"][name], array, allow_pickle=False)
+        spec["sha256"] = {file: file_sha256(tmp / file) for file in spec["tensors"].values()}
+        np.save(tmp / SPEC_FILE, np.array(json.dumps(spec, indent=1)), allow_pickle=False)
     return policy
 
 

@@ -302,14 +302,17 @@ def test_quickstart_replaces_only_its_own_earlier_run(monkeypatch, tmp_path, cap
     monkeypatch.setattr(driver, "train", tiny)
     monkeypatch.setattr(cli_module, "_episode_gif", lambda run, gif: gif.write_bytes(b"GIF89a"))
     out = tmp_path / "qs"
+    (tmp_path / "qs.new").mkdir()                       # a user's folder of that name is left alone
+    (tmp_path / "qs.new" / "notes.txt").write_text("mine")
     assert cli_module.main(["quickstart", "--out", str(out)]) in (0, 1)
+    assert (tmp_path / "qs.new" / "notes.txt").read_text() == "mine"
     # the IPPO recipe, as `marbler-jax train --scenario simple_navigation --algo ippo` trains it
     assert asked == [("simple_navigation", "ippo", *settings("recipe", "simple_navigation", "ippo"))]
     first = (out / "config.json").stat().st_mtime_ns
     assert cli_module.main(["quickstart", "--out", str(out)]) in (0, 1)       # its own run: replaced whole
     assert (out / "config.json").stat().st_mtime_ns != first and (out / "robotarium" / "main.py").exists()
     assert "replacing the earlier run" in capsys.readouterr().out
-    assert not (tmp_path / "qs.new").exists() and not (tmp_path / "qs.old").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["qs", "qs.new"]          # no staging folder left
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "notes.txt").write_text("keep me")

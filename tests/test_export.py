@@ -166,3 +166,31 @@ def test_bad_policy_folders_are_reported(tmp_path):
     kernel_file.write_bytes(b"garbage")
     with pytest.raises(ValueError, match="cannot load the policy"):
         load_policy(tmp_path / "p")
+
+def test_exports_never_touch_a_users_folders_beside_the_target(tmp_path):
+    """The policy folder and the bundle are built beside their target under names no user picks and swapped
+    in: folders the user named ``<target>.tmp`` / ``.old`` / ``.new`` stay as they were; a failed export
+    leaves the target as it was and no staging folder behind."""
+    env = marbler_jax.make("predator_capture_prey")
+    module, cfg = CASES["vdn-gru-shared"]
+    params = _params(module, cfg, env)
+    mine = {}
+    for suffix in (".tmp", ".old", ".new"):
+        for name in ("pol", "bundle"):
+            folder = tmp_path / f"{name}{suffix}"
+            folder.mkdir()
+            (folder / "notes.txt").write_text("mine")
+            mine[folder] = "mine"
+    export_params("vdn", cfg, params, env, tmp_path / "pol")
+    export_params("vdn", cfg, params, env, tmp_path / "pol")            # replacing an earlier export
+    from marbler_jax.deploy.bundle import write_bundle
+
+    write_bundle(env, tmp_path / "pol", tmp_path / "bundle", "vdn", episodes=1)
+    write_bundle(env, tmp_path / "pol", tmp_path / "bundle", "vdn", episodes=1)
+    assert all((folder / "notes.txt").read_text() == text for folder, text in mine.items())
+    before = sorted(p.name for p in tmp_path.iterdir())
+    nan = jax.tree_util.tree_map(lambda x: x * np.nan, params)
+    with pytest.raises(ValueError, match="non-finite"):
+        export_params("vdn", cfg, nan, env, tmp_path / "pol")
+    assert sorted(p.name for p in tmp_path.iterdir()) == before          # nothing half-written, nothing left
+    assert load_policy(tmp_path / "pol").spec["algo"] == "vdn"

@@ -19,10 +19,12 @@ The folder is written under a temporary name, checked with
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
 import shutil
+import tempfile
 from pathlib import Path
 
 import jax
@@ -105,22 +107,18 @@ def write_bundle(env, policy_dir, out, algo: str, episodes: int = 2, seed: int =
         state_class=state_cls.__name__, state_fields=sorted(fields), config=dataclasses.asdict(env.config),
         episodes=episodes, seed=seed, num_agents=env.num_agents,
     )
-    out = Path(out)
-    tmp = out.with_name(out.name + ".tmp")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    for flat, source in flatten_modules(names).items():
-        (tmp / f"{flat}.py").write_text(source)
-    for entry in Path(policy_dir).iterdir():
-        if entry.is_dir() or (tmp / entry.name).exists():
-            raise ValueError(f"policy folder entry {entry.name} cannot go into a flat bundle")
-        shutil.copyfile(entry, tmp / entry.name)
-    np.save(tmp / "initial_poses.npy", poses, allow_pickle=False)
-    for name, value in fields.items():
-        np.save(tmp / f"initial_{name}.npy", value, allow_pickle=False)
-    np.save(tmp / CONFIG_FILE, np.array(json.dumps(config, indent=1)), allow_pickle=False)
-    check_bundle_folder(tmp)
-    replace_folder(tmp, out)
+    with building(out) as tmp:
+        for flat, source in flatten_modules(names).items():
+            (tmp / f"{flat}.py").write_text(source)
+        for entry in Path(policy_dir).iterdir():
+            if entry.is_dir() or (tmp / entry.name).exists():
+                raise ValueError(f"policy folder entry {entry.name} cannot go into a flat bundle")
+            shutil.copyfile(entry, tmp / entry.name)
+        np.save(tmp / "initial_poses.npy", poses, allow_pickle=False)
+        for name, value in fields.items():
+            np.save(tmp / f"initial_{name}.npy", value, allow_pickle=False)
+        np.save(tmp / CONFIG_FILE, np.array(json.dumps(config, indent=1)), allow_pickle=False)
+        check_bundle_folder(tmp)
     return config
 
 
@@ -135,13 +133,34 @@ def check_target(out, marker: str, what: str, force: bool = False) -> None:
                          f"for the {what}, or pass --force to replace that folder")
 
 
+def staging_folder(out) -> Path:
+    """A new, empty folder beside ``out`` to build ``out`` in, named as no user names a folder
+    (``.<name>.new-<random>``): nothing of the user's is ever in the way or removed with it."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    return Path(tempfile.mkdtemp(prefix=f".{out.name}.new-", dir=out.parent))
+
+
+@contextlib.contextmanager
+def building(out):
+    """``with building(out) as tmp:`` fill ``tmp`` (:func:`staging_folder`); at the end it replaces ``out``
+    (:func:`replace_folder`), or, if the block fails, it is removed and ``out`` is left as it was."""
+    tmp = staging_folder(out)
+    try:
+        yield tmp
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    replace_folder(tmp, out)
+
+
 def replace_folder(tmp, out) -> None:
-    """Move the finished folder ``tmp`` to ``out``, replacing any old ``out`` (never half-written)."""
+    """Move the finished folder ``tmp`` to ``out``, replacing any old ``out`` (never half-written); the old one
+    is moved aside under a name of its own (``.<name>.old-<random>``) and removed."""
     tmp, out = Path(tmp), Path(out)
     if out.exists():
-        old = out.with_name(out.name + ".old")
-        shutil.rmtree(old, ignore_errors=True)
-        os.replace(out, old)
+        old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
+        os.replace(out, old)            # onto the empty folder just made
         os.replace(tmp, out)
         shutil.rmtree(old)
     else:
@@ -153,4 +172,5 @@ def folder_size(folder) -> int:
     return sum(p.stat().st_size for p in Path(folder).iterdir())
 
 
-__all__ = ["write_bundle", "initial_states", "folder_size", "replace_folder", "check_target"]
+__all__ = ["write_bundle", "initial_states", "folder_size", "replace_folder", "check_target", "staging_folder",
+           "building", "deployment_settings"]
