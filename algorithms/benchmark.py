@@ -36,7 +36,7 @@ import jax
 import numpy as np
 
 import marbler_jax
-from .checkpoints import latest_step
+from .checkpoints import latest_step, read_json, read_json_lines
 from .driver import (ALGORITHMS, TESTS_FILE, atomic_write, build_config, changed_settings, has_setting,
                      make_tester, run_config, seed_best_scores, train)
 from .recipes import recipe, settings_digest
@@ -96,10 +96,7 @@ def load_results(folder: str | Path) -> dict:
     """Every ``results*.json`` of ``folder`` merged into one marl-eval dict."""
     merged: dict = {}
     for path in sorted(Path(folder).glob("results*.json")):
-        try:
-            data = json.loads(path.read_text())
-        except json.JSONDecodeError as err:
-            raise ValueError(f"{path} is not valid JSON ({err})") from None
+        data = read_json(path)
         for env_name, tasks in data.items():
             for task, algos in tasks.items():
                 merged.setdefault(env_name, {}).setdefault(task, {}).update(algos)
@@ -114,7 +111,7 @@ def add_cell(path: Path, scenario: str, algo: str, runs: dict) -> dict:
     folder = os.open(path.parent, os.O_RDONLY)
     try:
         fcntl.flock(folder, fcntl.LOCK_EX)
-        results = json.loads(path.read_text()) if path.exists() else {}
+        results = read_json(path, {})
         results.setdefault(ENV_NAME, {}).setdefault(scenario, {})[algo] = runs
         atomic_write(path, json.dumps(results))
         return results
@@ -220,7 +217,7 @@ def plan_cells(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS, se
     check_hp_overrides(hp_overrides or {}, algos)
     cells = grid(algos, scenarios, process_index, process_count)
     path = Path(out) / results_name(process_index, process_count)
-    results = json.loads(path.read_text()) if path.exists() else {}
+    results = read_json(path, {})
     held = {cell: cell_digest(results[ENV_NAME][cell[0]][cell[1]]) for cell in finished_cells(results)}
     plans = []
     for scenario, algo in cells:
@@ -314,7 +311,7 @@ def cell_runs(run: Path, env, greedy_of_params, seeds: int, absolute_episodes: i
     (:func:`~marbler_jax_rl.recipes.settings_digest` of the cell's settings) is kept as ``recipe``."""
     from .run import Run
 
-    tests = [json.loads(line) for line in (run / TESTS_FILE).read_text().splitlines() if line.strip()]
+    tests = read_json_lines(run / TESTS_FILE)
     lines = [line for line in (run / "metrics.jsonl").read_text().splitlines() if line.strip()]
     metrics = [json.loads(line) for line in lines]
     best_scores = seed_best_scores(lines, seeds, tested=True)
@@ -385,7 +382,7 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
             + (f"; {redo} of its cells were made with other settings and train again" if redo else ""))
         spent_steps, spent_seconds = 0, 0.0
         budgets = [plan.steps * seeds for plan in todo]
-        results = json.loads(path.read_text()) if path.exists() else {}
+        results = read_json(path, {})
         for i, plan in enumerate(todo):
             k = len(plans) - len(todo) + i + 1
             scenario, algo, env_settings, steps = plan.scenario, plan.algo, plan.env_settings, plan.steps

@@ -9,6 +9,7 @@ matches and that restores, with one warning line per skipped step. Single files 
 """
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 from typing import Callable
@@ -24,6 +25,37 @@ def atomic_write(path: Path, data: bytes | str) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_bytes(data.encode() if isinstance(data, str) else data)
     os.replace(tmp, path)
+
+
+def read_json(path, default=None, kind=dict):
+    """The JSON value in the file ``path`` (``default`` where the file does not exist, if given), checked to
+    be a ``kind``; a damaged or misshapen file is a ``ValueError`` naming it and the place."""
+    path = Path(path)
+    if default is not None and not path.exists():
+        return default
+    try:
+        value = json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path} is not valid JSON (line {err.lineno}, column {err.colno}: {err.msg})") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise ValueError(f"cannot read {path}: {err}") from None
+    if not isinstance(value, kind):
+        raise ValueError(f"{path} holds a JSON {type(value).__name__}, expected an object")
+    return value
+
+
+def read_json_lines(path) -> list:
+    """The JSON values of the file ``path``, one per non-empty line; a damaged line is a ``ValueError``
+    naming the file and the line."""
+    path = Path(path)
+    values = []
+    for number, line in enumerate(path.read_text().splitlines(), 1):
+        if line.strip():
+            try:
+                values.append(json.loads(line))
+            except json.JSONDecodeError as err:
+                raise ValueError(f"{path} line {number} is not valid JSON ({err.msg}, column {err.colno})") from None
+    return values
 
 
 def write_manifest(folder: Path) -> None:

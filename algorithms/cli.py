@@ -245,15 +245,14 @@ def _saved_run(args):
     steps)`` as the run saved them, with ``args``' scenario, algorithm, seeds, seed and test episodes set from
     the run unless the command line gives them (what it gives must match the run: the driver checks). ``None``
     for a fresh run, or where ``--preset`` asks for a recipe's settings."""
-    import json
-
     from marbler_jax.scenarios.base import renamed_keys
+    from .checkpoints import read_json
 
     path = Path(args.out) / "config.json"
     if not args.resume or not path.exists() or _given(args, "--preset"):
         return None
     try:
-        saved = json.loads(path.read_text())
+        saved = read_json(path)
         for flag, name, key in (("--scenario", "scenario", "scenario"), ("--algo", "algo", "algo"),
                                 ("--seeds", "seeds", "seeds"), ("--seed", "seed", "seed"),
                                 ("--test-episodes", "test_episodes", "test_episodes")):
@@ -262,7 +261,7 @@ def _saved_run(args):
         algorithm = dict(saved["algorithm"])
         steps = int(algorithm.pop("total_timesteps"))
         env = renamed_keys(saved["env"])
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
+    except (KeyError, TypeError, AttributeError) as err:
         raise ValueError(f"--resume: {path} is not a run's config.json ({type(err).__name__}: {err})") from None
     return env, algorithm, steps
 

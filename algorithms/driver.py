@@ -356,7 +356,7 @@ def changed_settings(out: Path, config: dict, env) -> list[str]:
     same run). Env settings added since the run was saved count as equal where ``config`` has them at
     their defaults, renamed env settings under their current names, and ``learner_devices`` is not
     compared (it splits the same computation over devices; checkpoints restore on any count)."""
-    saved = json.loads((Path(out) / "config.json").read_text())
+    saved = checkpoints.read_json(Path(out) / "config.json")
     config = dict(config, algorithm={k: v for k, v in config["algorithm"].items() if k != "learner_devices"})
     saved["algorithm"] = {k: v for k, v in saved.get("algorithm", {}).items() if k != "learner_devices"}
     saved.setdefault("test_episodes", 0)       # run folders from before the greedy tests
@@ -498,7 +498,7 @@ def plot_learning_curve(metrics_path: Path, png: Path, title: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows = [json.loads(line) for line in Path(metrics_path).read_text().splitlines() if line.strip()]
+    rows = checkpoints.read_json_lines(metrics_path)
     rows = [r for r in rows if r["return_mean"] is not None]
     if not rows:
         return

@@ -43,7 +43,9 @@ class Run:
             raise ValueError(f"{path} is not a run folder (no {CONFIG_FILE})")
         from marbler_jax.scenarios.base import renamed_keys
 
-        config = json.loads((path / CONFIG_FILE).read_text())
+        from .checkpoints import read_json
+
+        config = read_json(path / CONFIG_FILE)
         return cls(path, dict(config, env=renamed_keys(config.get("env", {}))))
 
     @property

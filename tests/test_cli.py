@@ -349,3 +349,24 @@ def test_a_second_writer_gets_one_line_naming_the_first_and_touches_nothing(tmp_
     finally:
         holder.kill()
         holder.wait()
+
+
+def test_damaged_json_files_are_one_line_naming_the_file(tmp_path, capsys):
+    """A truncated results.json or config.json, or valid JSON of the wrong shape, is reported by name and place
+    in one line (exit 2), not as a parser traceback."""
+    bench = tmp_path / "bench"
+    bench.mkdir()
+    (bench / "results.json").write_text('{"marbler": {"warehouse": ')
+    assert main(["report", str(bench)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{bench / 'results.json'} is not valid JSON (line 1, column 27" in err
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text("[1, 2]")
+    assert main(["evaluate", str(run)]) == 2
+    assert f"{run / 'config.json'} holds a JSON list, expected an object" in capsys.readouterr().err
+    from marbler_jax_rl.checkpoints import read_json_lines
+
+    (run / "metrics.jsonl").write_text('{"update": 1}\n{"upd')
+    with pytest.raises(ValueError, match=r"metrics.jsonl line 2 is not valid JSON"):
+        read_json_lines(run / "metrics.jsonl")
