@@ -79,18 +79,26 @@ def _validate_6bb184e(self, errors=_ERRORS):
     return errors
 
 
-def _import_marbler():
-    """MARBLER's scenario package with torch/tensorflow stand-ins and rps 6bb184e's bookkeeping."""
+TIGHT_QP = {"reltol": 1e-10, "abstol": 1e-10, "feastol": 1e-10, "maxiters": 200}
+"""cvxopt options of a near-exact barrier QP (rps sets reltol = feastol = 1e-2 and 50 iterations at import)."""
+
+
+def _import_marbler(tight_qp: bool = False):
+    """MARBLER's scenario package with torch/tensorflow stand-ins and rps 6bb184e's bookkeeping; with
+    ``tight_qp`` the barrier's cvxopt QP solved near-exactly (:data:`TIGHT_QP`) instead of rps's loose way."""
     for name in ("torch", "tensorflow"):
         sys.modules.setdefault(name, types.ModuleType(name))
     sys.path.insert(0, str(MARBLER))
     import rps.robotarium_abc as abc
     abc.RobotariumABC._validate = _validate_6bb184e
+    if tight_qp:
+        import rps.utilities.barrier_certificates as certificates
+        certificates.options.update(TIGHT_QP)
     import importlib
     return importlib
 
 
-def make_env(scenario: str, seed: int, robots_loop: bool = False):
+def make_env(scenario: str, seed: int, robots_loop: bool = False, tight_qp: bool = False):
     """MARBLER's ``scenario`` (class name or marbler-jax name) from its ``config.yaml``: no figure, ``seed``
     for numpy's global generator (MARBLER draws its start states from it), and with ``robots_loop`` the
     per-iteration controller refresh (``robotarium: True``) instead of every 15 iterations."""
@@ -99,7 +107,7 @@ def make_env(scenario: str, seed: int, robots_loop: bool = False):
     scenario = MARBLER_JAX_NAMES.get(scenario, scenario)
     if scenario not in SCENARIOS:
         raise SystemExit(f"unknown scenario {scenario!r}; one of {sorted(SCENARIOS)}")
-    importlib = _import_marbler()
+    importlib = _import_marbler(tight_qp)
     from robotarium_gym.utilities.misc import objectview
 
     module, cls, reward_kind = SCENARIOS[scenario]
@@ -125,11 +133,11 @@ def _left(env, scenario: str) -> dict:
 
 
 def run_episodes(scenario: str, episodes: int, seed: int, policy=None, robots_loop: bool = False,
-                 record_steps: int = 0):
+                 record_steps: int = 0, tight_qp: bool = False):
     """``episodes`` episodes of MARBLER's ``scenario`` with a numpy ``policy`` (random actions when None);
     returns per-episode metrics and, with ``record_steps``, the first steps' observations."""
     scenario = MARBLER_JAX_NAMES.get(scenario, scenario)
-    env, config, reward_kind = make_env(scenario, seed, robots_loop)
+    env, config, reward_kind = make_env(scenario, seed, robots_loop, tight_qp)
     rng = np.random.default_rng(seed)
     num_actions = int(config["n_actions"])
     limit = int(config["max_episode_steps"])
@@ -274,6 +282,9 @@ def main(argv=None):
     ev.add_argument("--episodes", type=int, default=100)
     ev.add_argument("--seed", type=int, default=0)
     ev.add_argument("--robots-loop", action="store_true", help="refresh controller and barrier every iteration")
+    ev.add_argument("--tight-qp", action="store_true",
+                    help="solve the barrier's QP near-exactly (rps solves it loosely: reltol/feastol 1e-2, 50 "
+                         "iterations), to tell the solver's share of a difference from the rest")
     ev.add_argument("--out", required=True, help="JSON file to write")
     rec = sub.add_parser("record", help="observations of random-action episodes (an .npz of [T, N, D] arrays)")
     rec.add_argument("--scenario", required=True)
@@ -298,10 +309,12 @@ def main(argv=None):
         return
     policy = None if args.policy is None else _load_policy(args.policy)
     start = time.perf_counter()
-    metrics, _ = run_episodes(args.scenario, args.episodes, args.seed, policy, args.robots_loop)
+    metrics, _ = run_episodes(args.scenario, args.episodes, args.seed, policy, args.robots_loop,
+                              tight_qp=args.tight_qp)
     seconds = time.perf_counter() - start
     result = dict(scenario=MARBLER_JAX_NAMES.get(args.scenario, args.scenario), policy=args.policy,
                   episodes=args.episodes, seed=args.seed, loop="robots" if args.robots_loop else "marbler",
+                  qp="tight" if args.tight_qp else "rps",
                   seconds=round(seconds, 1), episodes_metrics=metrics)
     Path(args.out).write_text(json.dumps(result))
     print(f"{args.scenario}: {args.episodes} episodes in {seconds:.0f} s, reward {np.mean(metrics['reward']):.2f}")

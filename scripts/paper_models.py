@@ -256,7 +256,23 @@ def table_markdown(out: Path) -> str:
         lines.append(f"| {scenario} | {algo} | {_cell(a and a['reward'])} | {_cell(b and b['reward'])} | {diff} | "
                      f"{verdict} | {f'{paper[0]:g} ± {paper[1]:g}' if paper else '—'} | {_cell(d and d['reward'])} | "
                      f"{_cell(e and e['reward'])} |")
-    lines += ["", f"(a) and (b) agree on {sum(agree)} of {len(agree)} models.", "",
+    disagree = [(scenario, algo) for (scenario, algo, _, _), ok in zip(
+        [m for m in models() if all(_episodes(out, loop, m[0], m[1]) for loop in ("marbler-jax", "marbler"))], agree)
+        if not ok]
+    lines += ["", f"(a) and (b) agree on {sum(agree)} of {len(agree)} models."]
+    if disagree:
+        lines += ["", "Where they differ (" + ", ".join(f"{s} {a}" for s, a in disagree) + "), the difference is in the "
+                  "commands. Given MARBLER's own commands, marbler-jax repeats MARBLER's episodes step for step "
+                  "(`tests/test_marbler_parity.py`), so only the commands can differ in a closed loop: "
+                  "MARBLER's controller (`robotarium_gym/utilities/controller.py`, line 14, "
+                  "`create_single_integrator_barrier_certificate2(safety_radius=.2)`) solves the barrier QP with "
+                  "the cvxopt options rps sets when it is imported (`rps/utilities/barrier_certificates.py`, lines "
+                  "18-20: `reltol` and `feastol` 1e-2, 50 iterations), which leave commands up to ~0.2 m/s from "
+                  "the exact solution near other robots and walls (`../shared/golden` README), while marbler-jax "
+                  "solves it tightly, in float32. The out-of-bounds rates below differ with the reward. "
+                  "`scripts/marbler_oracle.py evaluate --tight-qp` runs MARBLER's code with a near-exact solve, "
+                  "to measure the solver's share."]
+    lines += ["",
               "### Task metrics: (a) marbler-jax, MARBLER's protocol / (b) MARBLER's code", "",
               "| scenario | algorithm | steps | prey / material left | collisions % | out of bounds % |",
               "|---|---|---|---|---|---|"]
