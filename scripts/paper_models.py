@@ -170,7 +170,8 @@ def _robotarium(args) -> None:
 
     (args.out / "robotarium-v2").mkdir(parents=True, exist_ok=True)
     todo = [(scenario, algo) for scenario, algo, _, _ in models()
-            if not (args.out / "robotarium-v2" / f"{scenario}-{algo}.json").exists()]
+            if not (args.out / "robotarium-v2" / f"{scenario}-{algo}.json").exists()
+            and scenario in (args.scenarios or SCENARIOS)]
     with ThreadPoolExecutor(args.workers) as pool:
         list(pool.map(run, todo))
 
@@ -361,6 +362,8 @@ def main(argv=None):
     parser.add_argument("--python", default=None,
                         help="a Python with MARBLER's stack (for `marbler`; default .marbler-venv) or with rps v2 (for "
                              "`robotarium`; default .rps-v2-venv, the test suite's)")
+    parser.add_argument("--scenarios", nargs="+", choices=list(SCENARIOS), default=None,
+                        help="only these scenarios' models (for `robotarium`)")
     parser.add_argument("--results-md", default=None, help="page whose paper-models block `table` rewrites")
     parser.add_argument("--readme", default=None, help="page whose paper-models-summary block `table` rewrites")
     args = parser.parse_args(argv)
