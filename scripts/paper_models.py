@@ -244,7 +244,7 @@ def table_markdown(out: Path) -> str:
         "| agree | (c) paper | (d) robots' loop | (e) rps v2, the bundle |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
-    agree = []
+    agree, disagree = [], []
     for scenario, algo, _, _ in models():
         a, b, d, e = (_episodes(out, loop, scenario, algo) for loop in LOOPS)
         paper = PAPER.get(scenario, {}).get(algo, {}).get("reward")
@@ -254,12 +254,11 @@ def table_markdown(out: Path) -> str:
             diff, ok = f"{mean:+.2f} [{low:+.2f}, {high:+.2f}]", low <= 0 <= high
             verdict = "yes" if ok else "**no**"
             agree.append(ok)
+            if not ok:
+                disagree.append((scenario, algo))
         lines.append(f"| {scenario} | {algo} | {_cell(a and a['reward'])} | {_cell(b and b['reward'])} | {diff} | "
                      f"{verdict} | {f'{paper[0]:g} ± {paper[1]:g}' if paper else '—'} | {_cell(d and d['reward'])} | "
                      f"{_cell(e and e['reward'])} |")
-    disagree = [(scenario, algo) for (scenario, algo, _, _), ok in zip(
-        [m for m in models() if all(_episodes(out, loop, m[0], m[1]) for loop in ("marbler-jax", "marbler"))], agree)
-        if not ok]
     lines += ["", f"(a) and (b) agree on {sum(agree)} of {len(agree)} models."]
     if disagree:
         lines += ["", "Where they differ (" + ", ".join(f"{s} {a}" for s, a in disagree) + "), the difference is in the "
