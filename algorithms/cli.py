@@ -702,9 +702,10 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--hang-seconds", type=float, default=120.0,
                     help="restart with --resume when the process used no CPU for this long inside a "
                          "training chunk (the jaxlib 0.10.2 CPU hang); 0 = off")
-    tr.add_argument("--seed-batching", choices=list(SEED_BATCHING), default="vmap",
-                    help="vmap: seeds vectorized in one batch (default); map: one after another in the program; "
-                         "devices: the seeds spread over the devices (on a CPU, one device per core)")
+    tr.add_argument("--seed-batching", choices=list(SEED_BATCHING), default=None,
+                    help="vmap: seeds vectorized in one batch; map: one after another in the program; devices: the "
+                         "seeds spread over the devices (on a CPU, one device per core); default: map for VDN, "
+                         "QMIX and QMIX_NS on a CPU, else vmap (the faster there)")
     tr.set_defaults(func=_train)
     ev = sub.add_parser("evaluate", help="paper-style metrics (MARBLER Table II) of a run's best checkpoint "
                                          "or of a policy folder (exported or imported)")

@@ -101,6 +101,19 @@ def evaluate(env, policy, episodes: int, key) -> dict:
 LOCK_FILE = ".lock"
 """The run folder's writer lock (:mod:`marbler_jax_rl.writer_lock`): one ``train`` per folder at a time."""
 SEED_BATCHING = {"vmap": lambda fn, xs: jax.vmap(fn)(xs), "map": jax.lax.map, "devices": over_devices}
+# Learners whose seeds run one after another on a CPU (see :func:`default_seed_batching`).
+MAPPED_ON_CPU = frozenset({"vdn", "qmix", "qmix_ns"})
+
+
+def default_seed_batching(algo: str, platform: str | None = None) -> str:
+    """How ``train`` maps the seeds when not told: ``"map"`` for the value-based learners on a CPU,
+    ``"vmap"`` otherwise. On a CPU a value-based update is many small per-seed matmuls and normalisations
+    that run 1.1-1.3x faster one seed at a time than batched over seeds (and ``map`` keeps the
+    ``learning_starts`` branch a real branch, where ``vmap`` computes both sides); PPO's larger
+    minibatches gain from the batch (BENCHMARKS.md, *Training throughput*). ``platform``: the default
+    backend's (``jax.default_backend()``) unless given."""
+    platform = platform or jax.default_backend()
+    return "map" if platform == "cpu" and algo in MAPPED_ON_CPU else "vmap"
 
 
 def make_tester(env, greedy_of_params, episodes: int, over_seeds=SEED_BATCHING["vmap"]):
@@ -122,13 +135,14 @@ def make_tester(env, greedy_of_params, episodes: int, over_seeds=SEED_BATCHING["
 def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Path,
           env_overrides: dict | None = None, hp: dict | None = None, eval_episodes: int = 256,
           checkpoint_every: int | None = None, keep: int = 3, resume: bool = False, seed: int = 0,
-          progress: bool = True, on_chunk=None, log=print, seed_batching: str = "vmap",
+          progress: bool = True, on_chunk=None, log=print, seed_batching: str | None = None,
           on_hang=None, hang_seconds: float = 120.0, test_episodes: int = 64) -> dict:
     """Train ``seeds`` seeds in one jitted program, in chunks of ``checkpoint_every`` updates.
 
-    ``seed_batching="vmap"`` (default) vectorizes the seeds (``jax.vmap``: one batch of
-    ``seeds x num_envs`` envs, the fastest for small per-seed batches); ``"map"`` runs them one after
-    another inside the program (``jax.lax.map``: the memory of one seed); ``"devices"`` spreads the
+    ``seed_batching="vmap"`` vectorizes the seeds (``jax.vmap``: one batch of ``seeds x num_envs``
+    envs); ``"map"`` runs them one after another inside the program (``jax.lax.map``: the memory of one
+    seed); ``None`` (default) picks the faster of the two for ``algo`` on this backend
+    (:func:`default_seed_batching`); ``"devices"`` spreads the
     seeds over the process's devices, each vmapping its share
     (:func:`marbler_jax_rl.data_parallel.over_devices`: on a CPU split into several devices with
     ``use_cpu_devices``, a device per core). All give every seed the same result up to float rounding.
@@ -162,6 +176,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
     cfg = build_config(algo, dict(hp or {}, total_timesteps=int(total_steps)))
     if seeds < 1:
         raise ValueError(f"seeds must be >= 1, got {seeds}")
+    seed_batching = seed_batching or default_seed_batching(algo)
     if seed_batching not in SEED_BATCHING:
         raise ValueError(f"seed_batching must be one of {list(SEED_BATCHING)}, got {seed_batching!r}")
     over_seeds = SEED_BATCHING[seed_batching]

@@ -6,7 +6,8 @@ the same runner state, the configurations taking turns (round-robin, the order r
 reports the best and the median wall time (``block_until_ready``; compile time separately). Taking turns
 in one process matters on a shared machine: the same program timed in two processes can differ by far more
 than two programs timed alternately in one (BENCHMARKS.md). Learning starts at update 0
-(``learning_starts=0``) so that value-based runs pay for their gradient steps. Writes JSON and prints a
+(``learning_starts=0`` unless ``--hp``/``--variants`` set it) so that value-based runs pay for their gradient
+steps. ``scripts/profile_train.py`` uses the same machinery to split an update's time into its parts. Writes JSON and prints a
 Markdown table.
 
     python scripts/bench_train.py --out bench_out/train.json
@@ -41,7 +42,8 @@ from tqdm.auto import tqdm
 
 import marbler_jax
 from marbler_jax_rl.data_parallel import use_cpu_devices
-from marbler_jax_rl.driver import ALGORITHMS, SEED_BATCHING, atomic_write, build_config, has_setting
+from marbler_jax_rl.driver import ALGORITHMS, SEED_BATCHING, atomic_write, build_config, default_seed_batching, has_setting
+from marbler_jax.scenarios.base import merge_settings
 from marbler_jax_rl.recipes import settings
 from marbler_jax_rl.cli import parse_overrides
 
@@ -53,13 +55,17 @@ def env_settings(scenario: str) -> frozenset:
 
 
 def prepare(scenario: str, algo: str, preset_name: str, updates: int, seeds: int = 1,
-            learner_devices: int = 1, overrides: dict | None = None, seed_batching: str = "vmap") -> dict:
+            learner_devices: int = 1, overrides: dict | None = None, seed_batching: str = "default") -> dict:
     """Builds and compiles one configuration's chunk of ``updates`` updates: its row (without timings)
-    and ``run() -> None``, which runs the chunk once from the same runner state and waits for it."""
+    and ``run() -> None``, which runs the chunk once from the same runner state and waits for it.
+    ``seed_batching="default"``: as ``marbler-jax train`` maps ``algo``'s seeds on this backend."""
+    if seed_batching == "default":
+        seed_batching = default_seed_batching(algo)
     env_overrides, hp, _ = settings(preset_name, scenario, algo)
-    env_overrides.update({key: value for key, value in (overrides or {}).items() if key in env_settings(scenario)})
+    env_overrides = merge_settings(env_overrides, {key: value for key, value in (overrides or {}).items()
+                                                   if key in env_settings(scenario)})
     hp.update({key: value for key, value in (overrides or {}).items() if has_setting(algo, key)})
-    if has_setting(algo, "learning_starts"):
+    if has_setting(algo, "learning_starts") and "learning_starts" not in (overrides or {}):
         hp["learning_starts"] = 0
     if learner_devices > 1:
         hp["learner_devices"] = learner_devices
@@ -113,9 +119,10 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[1], help="seed counts (vmapped in one program)")
     parser.add_argument("--learner-devices", type=int, nargs="+", default=[1],
                         help="value-based learners: devices each gradient step's batch is split over (CPU devices)")
-    parser.add_argument("--seed-batching", nargs="+", default=["vmap"], choices=list(SEED_BATCHING),
-                        help="how the seeds are mapped (as `marbler-jax train --seed-batching`); devices: one "
-                             "CPU device per core, never combined with --learner-devices > 1")
+    parser.add_argument("--seed-batching", nargs="+", default=["default"], choices=["default", *SEED_BATCHING],
+                        help="how the seeds are mapped (as `marbler-jax train --seed-batching`; default: as train "
+                             "maps each algorithm's seeds); devices: one CPU device per core, never combined with "
+                             "--learner-devices > 1")
     parser.add_argument("--hp", action="append", default=[], metavar="KEY=VALUE",
                         help="override a preset hyperparameter (repeatable), e.g. --hp cell=mingru")
     parser.add_argument("--variants", nargs="+", default=[""], metavar="KEY=VALUE[,KEY=VALUE]",

@@ -12,8 +12,8 @@ import pytest
 
 import marbler_jax
 from tests.helpers import compile_marks, interrupt_at, tensorboard_steps
-from marbler_jax_rl.driver import (ALGORITHMS, SEED_BATCHING, keep_improved, load_params, make_tester,
-                                  seed_best_scores, train)
+from marbler_jax_rl.driver import (ALGORITHMS, SEED_BATCHING, build_config, default_seed_batching, keep_improved,
+                                  load_params, make_tester, seed_best_scores, train)
 from marbler_jax_rl.run import Run, load_run
 from marbler_jax_rl.ippo import IPPOConfig, make_train
 
@@ -100,22 +100,39 @@ def test_changed_settings_name_what_differs_and_ignore_the_learners_device_count
     assert changed_settings(tmp_path, other, robots_loop) == ["algorithm", "env", "seeds"]
 
 
-def test_vmapped_seeds_match_mapped_seeds(tmp_path):
-    """The driver's ``seed_batching="vmap"`` (default) and ``"map"`` train the same seeds (vmap == loop)."""
+@pytest.mark.parametrize("algo", ["ippo", "vdn"])
+def test_vmapped_seeds_match_mapped_seeds(tmp_path, algo):
+    """The driver's ``seed_batching="vmap"`` and ``"map"`` train the same seeds (vmap == loop); for VDN with
+    learning starting in the second update, a branch that ``map`` takes and ``vmap`` computes both sides of."""
     env = marbler_jax.make("simple_navigation")
-    trainer = make_train(env, IPPOConfig(total_timesteps=STEPS, **HP))
+    if algo == "ippo":
+        trainer = make_train(env, IPPOConfig(total_timesteps=STEPS, **HP))
+    else:
+        cfg = build_config("vdn", dict(num_envs=4, buffer_size=8, batch_size=4, train_steps=2, hidden=8, cell="mingru",
+                                       num_steps=10, learning_starts=41, total_timesteps=10**6))
+        trainer = ALGORITHMS["vdn"][1](env, cfg)
     keys = jax.random.split(jax.random.PRNGKey(5), 2)
     out = {}
     for name in ("vmap", "map"):          # "devices": tests/test_data_parallel.py, in a two-device interpreter
         over_seeds = SEED_BATCHING[name]
         runner = jax.jit(lambda k: over_seeds(trainer.init, k))(keys)
-        runner, _ = jax.jit(lambda r: over_seeds(lambda s: trainer.run(s, 2), r))(runner)
+        runner, metrics = jax.jit(lambda r: over_seeds(lambda s: trainer.run(s, 2), r))(runner)
         out[name] = runner["params"]
+        if algo == "vdn":                 # no loss before learning starts, one after
+            assert np.isnan(metrics["loss"][:, 0]).all() and np.isfinite(metrics["loss"][:, 1]).all()
     jax.tree_util.tree_map(lambda a, b: np.testing.assert_allclose(a, b, rtol=2e-4, atol=1e-6), out["vmap"], out["map"])
-    kernel = out["vmap"]["params"]["actor"]["Dense_0"]["kernel"]
-    assert kernel.shape[0] == 2 and not np.allclose(kernel[0], kernel[1])
+    first = jax.tree_util.tree_leaves(out["vmap"])[0]
+    assert first.shape[0] == 2 and not np.allclose(first[0], first[1])
     with pytest.raises(ValueError, match=r"seed_batching must be one of \['vmap', 'map', 'devices'\], got 'pmap'"):
-        train("simple_navigation", "ippo", STEPS, 2, tmp_path / "bad", hp=HP, seed_batching="pmap", progress=False)
+        train("simple_navigation", algo, STEPS, 2, tmp_path / "bad", hp=HP if algo == "ippo" else {},
+              seed_batching="pmap", progress=False)
+
+
+def test_seeds_are_mapped_for_value_based_learners_on_a_cpu_and_vmapped_otherwise():
+    assert [default_seed_batching(a, "cpu") for a in ("vdn", "qmix", "qmix_ns", "mappo", "ippo")] == \
+        ["map", "map", "map", "vmap", "vmap"]
+    assert {default_seed_batching(a, "gpu") for a in ALGORITHMS} == {"vmap"}
+    assert default_seed_batching("vdn") == ("map" if jax.default_backend() == "cpu" else "vmap")
 
 
 def test_greedy_tests_do_not_change_training(tmp_path):
