@@ -37,7 +37,8 @@ import numpy as np
 
 import marbler_jax
 from .checkpoints import latest_step, read_json, read_json_lines
-from .driver import (ALGORITHMS, TESTS_FILE, atomic_write, build_config, changed_settings, has_setting,
+from . import registry
+from .driver import (TESTS_FILE, atomic_write, build_config, changed_settings, has_setting,
                      make_tester, run_config, seed_best_scores, train)
 from .recipes import recipe, settings_digest
 from .writer_lock import writer_lock
@@ -161,9 +162,8 @@ def finished_cells(results: dict) -> set[tuple[str, str]]:
 
 def grid(algos, scenarios, process_index: int = 0, process_count: int = 1) -> list[tuple[str, str]]:
     """This process's share of the ``scenarios x algos`` cells (canonical names, every ``process_count``-th)."""
-    unknown = sorted(set(algos) - set(ALGORITHMS))
-    if unknown:
-        raise ValueError(f"unknown algorithm(s) {unknown}; available: {sorted(ALGORITHMS)}")
+    for algo in algos:
+        registry.get(algo)          # an unknown name: one ValueError naming what is available
     cells = [(canonical_name(s), a) for s in scenarios for a in algos]
     if len(set(cells)) != len(cells):
         raise ValueError(f"the grid names a cell twice: {cells}")
@@ -238,7 +238,7 @@ def plan_cells(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS, se
             checkpoint = latest_step(run / "checkpoints")
             status = "new" if checkpoint is None else "resume"
         plans.append(CellPlan(scenario, algo, env_settings, hp, steps, digest,
-                              ALGORITHMS[algo][1](env, cfg).num_updates, status, checkpoint,
+                              registry.get(algo).make_train(env, cfg).num_updates, status, checkpoint,
                               replaces=status != "done" and (scenario, algo) in held))
     return plans
 
@@ -407,7 +407,7 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
             train(scenario, algo, steps, seeds, run, env_overrides=env_settings, hp=hp, eval_episodes=0,
                   checkpoint_every=max(1, plan.updates // eval_points), resume=resume, seed=seed,
                   progress=progress, log=log, test_episodes=test_episodes, on_chunk=chunk_saved)
-            greedy = ALGORITHMS[algo][2]
+            greedy = registry.get(algo).greedy_policy
             runs = cell_runs(run, env, lambda p: greedy(env, cfg, p), seeds, absolute_factor * test_episodes,
                              jax.random.PRNGKey(seed + 2024), plan.digest)
             seconds = clock.save()

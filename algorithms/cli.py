@@ -145,7 +145,7 @@ def _list(args) -> int:
     import textwrap
 
     import marbler_jax
-    from .driver import ALGORITHM_SUMMARIES
+    from . import registry
     from .recipes import recipe
     from marbler_jax.registry import scenario_class
     from marbler_jax.scenarios.base import field_docs
@@ -183,8 +183,8 @@ def _list(args) -> int:
     if args.scenario is not None:
         return 0
     print("algorithms (marbler-jax train --algo" + (", with the settings of each one's recipe):" if args.verbose else "):"))
-    for algo, summary in ALGORITHM_SUMMARIES.items():
-        print(f"  {algo}: {summary}")
+    for algo in registry.names():
+        print(f"  {algo}: {registry.get(algo).summary}")
         if args.verbose:
             chosen = recipe(algo)
             budgets = ", ".join(f"{name} {steps:,}" for name, steps in chosen.steps.items())
@@ -638,7 +638,7 @@ PROTOCOL_HELP = ("marbler: MARBLER's shipped protocol, that of the paper's Table
 
 def build_parser() -> argparse.ArgumentParser:
     from .benchmark import PAPER_ALGOS, PAPER_SCENARIOS
-    from .driver import ALGORITHMS, SEED_BATCHING
+    from .driver import SEED_BATCHING
     from .recipes import RECIPE_NAMES
     from .run import CHECKPOINTS, DEFAULT_CHECKPOINT
     from marbler_jax.scenarios.base import PROTOCOLS
@@ -675,7 +675,9 @@ def build_parser() -> argparse.ArgumentParser:
     tr = sub.add_parser("train", help="train an algorithm on a scenario (writes a run folder)",
                         epilog=PROGRESS_LEGEND)
     tr.add_argument("--scenario", default="simple_navigation")
-    tr.add_argument("--algo", default="ippo", choices=sorted(ALGORITHMS))
+    tr.add_argument("--algo", default="ippo", metavar="ALGO",
+                    help="an algorithm's name (`marbler-jax list` shows them) or MODULE:NAME of an Algorithm that is "
+                         "not installed (docs/algorithms.md)")
     tr.add_argument("--preset", default="recipe", choices=list(RECIPE_NAMES),
                     help="settings to start from (recipe: the algorithm's benchmark recipe, algorithms/recipes.py; "
                          "paper: MARBLER's EPyMARL settings; none: the algorithm's defaults)")
@@ -755,7 +757,8 @@ def build_parser() -> argparse.ArgumentParser:
     rd.set_defaults(func=_render)
     bm = sub.add_parser("benchmark", help="MARBLER's Table II grid: every cell's seeds trained with the recipes, "
                         "tested during training, one marl-eval results file (resumable)", epilog=PROGRESS_LEGEND)
-    bm.add_argument("--algos", nargs="+", default=list(PAPER_ALGOS), choices=sorted(ALGORITHMS))
+    bm.add_argument("--algos", nargs="+", default=list(PAPER_ALGOS), metavar="ALGO",
+                    help="algorithms, as train's --algo takes them")
     bm.add_argument("--scenarios", nargs="+", default=list(PAPER_SCENARIOS))
     bm.add_argument("--seeds", type=int, default=5, help="seeds per cell, trained in one vmapped program")
     bm.add_argument("--out", default=None, help="results folder (results.json, runs/); default: "

@@ -1,7 +1,9 @@
-"""Pieces shared by the training loops: the per-rollout episode metrics."""
+"""Pieces shared by the training loops: the per-rollout episode metrics, flat parameter names."""
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 
 # The info entries a training rollout keeps (per step) to report finished episodes.
 EPISODE_INFO = ("episode_return", "steps", "episode_collided", "episode_out_of_bounds")
@@ -23,3 +25,9 @@ def rollout_metrics(done, info) -> dict:
     return {"return": at_done(info["episode_return"]), "length": at_done(info["steps"]),
             "collision_rate": at_done(info["episode_collided"]),
             "out_of_bounds_rate": at_done(info["episode_out_of_bounds"]), "episodes": count}
+
+
+def flatten_params(params, sep: str = "/") -> dict[str, np.ndarray]:
+    """A parameter pytree of nested dicts as ``{"a<sep>b<sep>c": array}``."""
+    return {sep.join(str(getattr(k, "key", k)) for k in key_path): np.asarray(v)
+            for key_path, v in jax.tree_util.tree_flatten_with_path(params)[0]}

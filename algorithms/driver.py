@@ -27,42 +27,23 @@ import numpy as np
 import marbler_jax
 from marbler_jax.registry import canonical_name
 from marbler_jax.scenarios.base import renamed_keys
-from . import checkpoints, ippo, mappo, qmix, vdn
+from . import checkpoints, registry
 from .checkpoints import atomic_write
+from .common import flatten_params
 from .data_parallel import over_devices
 from .hang_guard import HangGuard, hang_message
 from .writer_lock import writer_lock
 from marbler_jax.rollout import batched_rollout, episode_stats, first_episode_metrics, make_rollout
 
-# name -> (config class, make_train(env, cfg), greedy_policy(env, cfg, params))
-ALGORITHMS = {
-    "ippo": (ippo.IPPOConfig, ippo.make_train, ippo.greedy_policy),
-    "mappo": (mappo.MAPPOConfig, mappo.make_train, mappo.greedy_policy),
-    "vdn": (vdn.VDNConfig, vdn.make_train, vdn.greedy_policy),
-    "qmix": (qmix.QMIXConfig, qmix.make_train, qmix.greedy_policy),
-    "qmix_ns": (qmix.QMIXNSConfig, qmix.make_train, qmix.greedy_policy),
-}
-# one line each, for ``marbler-jax list``
-ALGORITHM_SUMMARIES = {
-    "ippo": "independent PPO: a shared actor-critic, the critic on each robot's own observation",
-    "mappo": "PPO with a centralised critic on the global state (every robot's observation)",
-    "vdn": "value decomposition: the team value is the sum of the robots' Q-values (one shared network)",
-    "qmix": "a monotonic hypernetwork mixer of the robots' Q-values on the global state (one shared network)",
-    "qmix_ns": "QMIX with one network per robot (no parameter sharing)",
-}
-
-
 def has_setting(algo: str, name: str) -> bool:
     """Whether ``algo``'s config has the setting ``name`` (e.g. ``learner_devices``)."""
-    return name in {f.name for f in dataclasses.fields(ALGORITHMS[algo][0])}
+    return name in registry.get(algo).settings()
 
 
 def build_config(algo: str, overrides: dict):
     """``algo``'s config with ``overrides``, every value checked for type, finiteness and range (the
     error names the setting, the value and what is allowed)."""
-    if algo not in ALGORITHMS:
-        raise ValueError(f"unknown algorithm {algo!r}; available: {sorted(ALGORITHMS)}")
-    cls = ALGORITHMS[algo][0]
+    cls = registry.get(algo).config           # an unknown name: one ValueError naming what is available
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(overrides) - names)
     if unknown:
@@ -101,19 +82,15 @@ def evaluate(env, policy, episodes: int, key) -> dict:
 LOCK_FILE = ".lock"
 """The run folder's writer lock (:mod:`marbler_jax_rl.writer_lock`): one ``train`` per folder at a time."""
 SEED_BATCHING = {"vmap": lambda fn, xs: jax.vmap(fn)(xs), "map": jax.lax.map, "devices": over_devices}
-# Learners whose seeds run one after another on a CPU (see :func:`default_seed_batching`).
-MAPPED_ON_CPU = frozenset({"vdn", "qmix", "qmix_ns"})
-
-
 def default_seed_batching(algo: str, platform: str | None = None) -> str:
-    """How ``train`` maps the seeds when not told: ``"map"`` for the value-based learners on a CPU,
-    ``"vmap"`` otherwise. On a CPU a value-based update is many small per-seed matmuls and normalisations
+    """How ``train`` maps the seeds when not told: ``"map"`` on a CPU for the algorithms that ask for it
+    (``Algorithm.map_seeds_on_cpu``: the value-based learners), ``"vmap"`` otherwise. On a CPU a value-based update is many small per-seed matmuls and normalisations
     that run 1.1-1.3x faster one seed at a time than batched over seeds (and ``map`` keeps the
     ``learning_starts`` branch a real branch, where ``vmap`` computes both sides); PPO's larger
     minibatches gain from the batch (BENCHMARKS.md, *Training throughput*). ``platform``: the default
     backend's (``jax.default_backend()``) unless given."""
     platform = platform or jax.default_backend()
-    return "map" if platform == "cpu" and algo in MAPPED_ON_CPU else "vmap"
+    return "map" if platform == "cpu" and registry.get(algo).map_seeds_on_cpu else "vmap"
 
 
 def make_tester(env, greedy_of_params, episodes: int, over_seeds=SEED_BATCHING["vmap"]):
@@ -187,7 +164,7 @@ def train(scenario: str, algo: str, total_steps: int, seeds: int, out: str | Pat
         raise ValueError(f"test_episodes must be >= 0 (0 = no greedy test), got {test_episodes}")
     if eval_episodes < 0:
         raise ValueError(f"eval_episodes must be >= 0 (0 = no final evaluation), got {eval_episodes}")
-    _, make_train, greedy = ALGORITHMS[algo]
+    make_train, greedy = registry.get(algo).make_train, registry.get(algo).greedy_policy
     if checkpoint_every is not None and (isinstance(checkpoint_every, bool) or not isinstance(checkpoint_every, int)
                                          or checkpoint_every < 1):
         raise ValueError(f"checkpoint_every must be an integer >= 1 (updates per chunk), got {checkpoint_every!r}")
@@ -435,12 +412,6 @@ def keep_improved(improved: np.ndarray, params, best_params):
     return jax.tree_util.tree_map(pick, params, best_params)
 
 
-def flatten_params(params, sep: str = "/") -> dict[str, np.ndarray]:
-    """A parameter pytree of nested dicts as ``{"a<sep>b<sep>c": array}``."""
-    return {sep.join(str(getattr(k, "key", k)) for k in key_path): np.asarray(v)
-            for key_path, v in jax.tree_util.tree_flatten_with_path(params)[0]}
-
-
 def save_params(path: Path, params) -> None:
     """Write a parameter pytree of nested dicts as ``.npz`` (keys ``a/b/c``), atomically."""
     flat = flatten_params(params)
@@ -539,5 +510,5 @@ def plot_learning_curve(metrics_path: Path, png: Path, title: str) -> None:
     os.replace(tmp, png)
 
 
-__all__ = ["train", "evaluate", "plot_learning_curve", "ALGORITHMS", "atomic_write", "save_params",
+__all__ = ["train", "evaluate", "plot_learning_curve", "atomic_write", "save_params",
            "load_params"]

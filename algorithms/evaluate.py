@@ -22,7 +22,7 @@ import numpy as np
 from marbler_jax.control_loop import ROBOTS_CONTROL_PERIOD
 from marbler_jax.deploy.bundle import deployment_settings
 from marbler_jax.rollout import first_episode_metrics, make_rollout
-from .driver import ALGORITHMS
+from . import registry
 from .run import DEFAULT_CHECKPOINT, Run
 
 # MARBLER paper, Table II, simulated experiments: (mean, std) per scenario / algorithm / metric.
@@ -90,7 +90,7 @@ def evaluate_run(run, episodes: int = 100, checkpoint: str = DEFAULT_CHECKPOINT,
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     config = opened.config
     env = opened.env(**(env_overrides or {}))
-    greedy = ALGORITHMS[opened.algo][2]
+    greedy = registry.get(opened.algo).greedy_policy
     cfg = opened.algorithm_config()
     params = opened.params(checkpoint)
     n_seeds = jax.tree_util.tree_leaves(params)[0].shape[0]

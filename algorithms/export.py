@@ -1,8 +1,8 @@
 """Export a run's trained agents to a numpy policy folder (see :mod:`marbler_jax.numpy_policy`).
 
 ``export_policy(run, out)`` takes the run's best checkpoint (or ``params.npz`` with
-``checkpoint="final"``), keeps only what acting needs (the actor of IPPO/MAPPO, the agent network
-of VDN/QMIX/QMIX_NS; critics and mixers are training-only), and writes one ``float32`` ``.npy`` per
+``checkpoint="final"``), keeps only what acting needs (the algorithm's ``policy_tensors``: the actor of
+IPPO/MAPPO, the agent network of VDN/QMIX/QMIX_NS; critics and mixers are training-only), and writes one ``float32`` ``.npy`` per
 tensor plus ``policy_spec.npy``. The folder is written under a temporary name and renamed into
 place, so an interrupted export never leaves a half-written policy.
 """
@@ -10,35 +10,13 @@ from __future__ import annotations
 
 import json
 
-import jax
 import numpy as np
 
-from .driver import flatten_params
+from . import registry
 from .run import DEFAULT_CHECKPOINT, Run
-from .networks import QAgent
 from marbler_jax.control_loop import ROBOTS_CONTROL_PERIOD
 from marbler_jax.deploy.bundle import building, check_target, deployment_settings, write_bundle
 from marbler_jax.numpy_policy import FORMAT, SPEC_FILE, NumpyPolicy, file_sha256
-
-
-def policy_tensors(algo: str, cfg, params) -> tuple[dict, dict]:
-    """``(spec fields, tensors)`` of one seed's parameters (pytrees of nested dicts)."""
-    params = jax.tree_util.tree_map(np.asarray, params)
-    if algo in ("ippo", "mappo"):
-        actor = params["params"]["actor"]
-        layers = sorted(actor, key=lambda name: int(name.split("_")[-1]))
-        fields = dict(kind="actor", recurrent=False, cell="none", hidden=cfg.hidden, activation=cfg.activation,
-                      layers=[f"actor.{name}" for name in layers])
-        return fields, _float32(flatten_params({"actor": actor}, "."))
-    agent = params["agent"]["params"]
-    memory = QAgent(1, cfg.hidden, cfg.recurrent, cfg.cell).memory
-    fields = dict(kind="q_agent", recurrent=memory != "none", cell=memory, layer_norm=bool(cfg.layer_norm),
-                  last_action=bool(cfg.last_action), hidden=cfg.hidden, activation="relu", layers=[])
-    return fields, _float32(flatten_params(agent, "."))
-
-
-def _float32(tensors: dict) -> dict:
-    return {name: np.asarray(value, np.float32) for name, value in tensors.items()}
 
 
 def export_params(algo: str, cfg, params, env, out, extra: dict | None = None, force: bool = False) -> NumpyPolicy:
@@ -46,10 +24,9 @@ def export_params(algo: str, cfg, params, env, out, extra: dict | None = None, f
     returns the numpy policy. ``out`` is replaced only if it is empty or an earlier policy export (or
     ``force``)."""
     check_target(out, SPEC_FILE, "policy", force)
-    fields, tensors = policy_tensors(algo, cfg, params)
+    fields, tensors = registry.get(algo).policy_tensors(cfg, params)
     spec = dict(format=FORMAT, algo=algo, scenario=env.name, num_agents=env.num_agents, obs_dim=env.obs_dim,
-                num_actions=env.num_actions, shared=bool(cfg.shared), agent_ids=bool(cfg.agent_ids), **fields,
-                **(extra or {}))
+                num_actions=env.num_actions, **fields, **(extra or {}))
     return write_policy(spec, tensors, out, force)
 
 
@@ -100,4 +77,4 @@ def export_policy(run, out, seed_index: int = 0, checkpoint: str = DEFAULT_CHECK
     return spec
 
 
-__all__ = ["export_policy", "export_params", "policy_tensors", "write_policy"]
+__all__ = ["export_policy", "export_params", "write_policy"]

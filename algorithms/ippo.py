@@ -23,9 +23,10 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 
-from .common import episode_info, rollout_metrics
+from .common import episode_info, flatten_params, rollout_metrics
 from .data_parallel import rows_over
 from .networks import ActorCritic, apply_agents, init_agents, with_agent_ids
 
@@ -251,6 +252,16 @@ def make_train(env, cfg: IPPOConfig):
     train.init, train.run = init, run
     train.num_updates, train.steps_per_update = cfg.num_updates, batch
     return train
+
+
+def policy_tensors(cfg: IPPOConfig, params) -> tuple[dict, dict]:
+    """What an export keeps of one seed's ``params``: the actor (the critic is training-only), as
+    :class:`marbler_jax.numpy_policy.NumpyPolicy` spec fields and ``float32`` tensors by name."""
+    actor = jax.tree_util.tree_map(np.asarray, params)["params"]["actor"]
+    layers = sorted(actor, key=lambda name: int(name.split("_")[-1]))
+    fields = dict(kind="actor", recurrent=False, cell="none", hidden=cfg.hidden, activation=cfg.activation,
+                  layers=[f"actor.{name}" for name in layers], shared=bool(cfg.shared), agent_ids=bool(cfg.agent_ids))
+    return fields, {name: np.asarray(v, np.float32) for name, v in flatten_params({"actor": actor}, ".").items()}
 
 
 def greedy_policy(env, cfg: IPPOConfig, params):

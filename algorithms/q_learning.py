@@ -56,10 +56,11 @@ import functools
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 
 from . import buffer as episode_buffer
-from .common import episode_info, rollout_metrics
+from .common import episode_info, flatten_params, rollout_metrics
 from .data_parallel import split_batch, split_rows, whole_on
 from .ippo import global_state
 from .networks import QAgent, apply_agents, init_agents, with_agent_ids
@@ -506,6 +507,17 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
     return train
 
 
+def policy_tensors(cfg: QConfig, params) -> tuple[dict, dict]:
+    """What an export keeps of one seed's ``params``: the agent network (the mixer is training-only), as
+    :class:`marbler_jax.numpy_policy.NumpyPolicy` spec fields and ``float32`` tensors by name."""
+    agent = jax.tree_util.tree_map(np.asarray, params)["agent"]["params"]
+    memory = QAgent(1, cfg.hidden, cfg.recurrent, cfg.cell).memory
+    fields = dict(kind="q_agent", recurrent=memory != "none", cell=memory, layer_norm=bool(cfg.layer_norm),
+                  last_action=bool(cfg.last_action), hidden=cfg.hidden, activation="relu", layers=[],
+                  shared=bool(cfg.shared), agent_ids=bool(cfg.agent_ids))
+    return fields, {name: np.asarray(v, np.float32) for name, v in flatten_params(agent, ".").items()}
+
+
 def greedy_policy(env, cfg: QConfig, params) -> StatefulPolicy:
     """Greedy (argmax-Q) policy of trained ``params``. Its carry is the agents' memory ``[..., N, M]``:
     the hidden state, followed with ``cfg.last_action`` by the one-hot of each agent's last action
@@ -532,5 +544,5 @@ def greedy_policy(env, cfg: QConfig, params) -> StatefulPolicy:
     return StatefulPolicy(initial_carry=initial_carry, step=step)
 
 
-__all__ = ["QConfig", "make_train", "greedy_policy", "sequence_length", "lambda_returns", "env_epsilons",
+__all__ = ["QConfig", "make_train", "greedy_policy", "policy_tensors", "sequence_length", "lambda_returns", "env_epsilons",
            "agent_inputs", "previous_actions", "OPTIMIZERS"]

@@ -184,15 +184,18 @@ PAPER: Mapping[str, Recipe] = MappingProxyType({
 
 
 def recipe(algo: str, name: str = "recipe") -> Recipe:
-    """The ``name`` recipe (see :data:`RECIPE_NAMES`) of ``algo``."""
+    """The ``name`` recipe (see :data:`RECIPE_NAMES`) of ``algo``: a built-in's from :data:`RECIPES` /
+    :data:`PAPER`, another algorithm's own (``Algorithm.recipes``), or its config's defaults where it has
+    none by that name or for ``"none"``."""
+    from .registry import get
+
     if name not in RECIPE_NAMES:
         raise ValueError(f"unknown preset {name!r}; available: {list(RECIPE_NAMES)}")
-    table = RECIPES if name == "recipe" else PAPER
-    if algo not in RECIPES:
-        raise ValueError(f"unknown algorithm {algo!r}; available: {sorted(RECIPES)}")
-    if name == "none":
-        return Recipe(algo, type(table[algo].config)(), env=MappingProxyType({}), default_steps=1_000_000)
-    return table[algo]
+    algorithm = get(algo)            # an unknown name: one ValueError naming what is available
+    presets = {"recipe": RECIPES[algo], "paper": PAPER[algo]} if algo in RECIPES else algorithm.recipes
+    if name != "none" and name in presets:
+        return presets[name]
+    return Recipe(algo, algorithm.config(), env=MappingProxyType({}), default_steps=1_000_000)
 
 
 def settings(name: str, scenario: str, algo: str) -> tuple[dict, dict, int]:

@@ -69,9 +69,9 @@ class Run:
 
     def algorithm_config(self):
         """The algorithm's typed config as trained."""
-        from .driver import ALGORITHMS
+        from . import registry
 
-        return ALGORITHMS[self.algo][0](**self.config["algorithm"])
+        return registry.get(self.algo).config(**self.config["algorithm"])
 
     def params(self, checkpoint: str = DEFAULT_CHECKPOINT):
         """Seed-major parameters (leaves ``[seeds, ...]``) of ``checkpoint`` (one of :data:`CHECKPOINTS`)."""
@@ -121,10 +121,10 @@ class Run:
     def policy(self, seed_index: int = 0, checkpoint: str = DEFAULT_CHECKPOINT, env=None):
         """Greedy policy ``(key, obs [N, obs_dim], carry) -> (actions, carry)`` of one seed, acting in
         ``env`` (default: :meth:`env`)."""
-        from .driver import ALGORITHMS
+        from . import registry
 
         env = self.env() if env is None else env
-        greedy = ALGORITHMS[self.algo][2]
+        greedy = registry.get(self.algo).greedy_policy
         return greedy(env, self.algorithm_config(), self.seed_params(seed_index, checkpoint))
 
     def _metric_lines(self) -> list[str]:

@@ -42,7 +42,8 @@ from tqdm.auto import tqdm
 
 import marbler_jax
 from marbler_jax_rl.data_parallel import use_cpu_devices
-from marbler_jax_rl.driver import ALGORITHMS, SEED_BATCHING, atomic_write, build_config, default_seed_batching, has_setting
+from marbler_jax_rl import registry
+from marbler_jax_rl.driver import SEED_BATCHING, atomic_write, build_config, default_seed_batching, has_setting
 from marbler_jax.scenarios.base import merge_settings
 from marbler_jax_rl.recipes import settings
 from marbler_jax_rl.cli import parse_overrides
@@ -71,7 +72,7 @@ def prepare(scenario: str, algo: str, preset_name: str, updates: int, seeds: int
         hp["learner_devices"] = learner_devices
     env = marbler_jax.make(scenario, **env_overrides)
     cfg = build_config(algo, dict(hp, total_timesteps=10**9))
-    trainer = ALGORITHMS[algo][1](env, cfg)
+    trainer = registry.get(algo).make_train(env, cfg)
     keys = jax.random.split(jax.random.PRNGKey(0), seeds)
     over_seeds = SEED_BATCHING[seed_batching]                                 # as the driver maps the seeds
     runner = jax.block_until_ready(jax.jit(lambda k: over_seeds(trainer.init, k))(keys))

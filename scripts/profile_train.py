@@ -43,7 +43,8 @@ from marbler_jax.rollout import make_rollout  # noqa: E402
 from marbler_jax.scenarios.base import PROTOCOLS, merge_settings  # noqa: E402
 from marbler_jax_rl import checkpoints  # noqa: E402
 from marbler_jax_rl.data_parallel import use_cpu_devices  # noqa: E402
-from marbler_jax_rl.driver import (ALGORITHMS, SEED_BATCHING, atomic_write, build_config,  # noqa: E402
+from marbler_jax_rl import registry  # noqa: E402
+from marbler_jax_rl.driver import (SEED_BATCHING, atomic_write, build_config,  # noqa: E402
                                    default_seed_batching, make_tester)
 from marbler_jax_rl.recipes import settings  # noqa: E402
 
@@ -93,11 +94,11 @@ def time_chunk_work(scenario, algo, env_settings, hp, seeds, batching, test_epis
 
     env = marbler_jax.make(scenario, **env_settings)
     cfg = build_config(algo, dict(hp, total_timesteps=10**9))
-    trainer = ALGORITHMS[algo][1](env, cfg)
+    trainer = registry.get(algo).make_train(env, cfg)
     over_seeds = SEED_BATCHING[batching]
     runner = jax.block_until_ready(jax.jit(lambda k: over_seeds(trainer.init, k))(
         jax.random.split(jax.random.PRNGKey(0), seeds)))
-    tester = make_tester(env, lambda p: ALGORITHMS[algo][2](env, cfg, p), test_episodes, over_seeds)
+    tester = make_tester(env, lambda p: registry.get(algo).greedy_policy(env, cfg, p), test_episodes, over_seeds)
     keys = jax.random.split(jax.random.PRNGKey(1), seeds)
     jax.block_until_ready(tester(runner["params"], keys))
     best = dict(test=np.inf, host=np.inf, checkpoint=np.inf)
@@ -162,7 +163,7 @@ def markdown(result: dict) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--algo", default="vdn", choices=sorted(ALGORITHMS))
+    parser.add_argument("--algo", default="vdn", help="an algorithm, as `marbler-jax train --algo` takes it")
     parser.add_argument("--scenario", default="predator_capture_prey")
     parser.add_argument("--protocol", choices=sorted(PROTOCOLS), default=None,
                         help="train in this protocol instead of the recipe's loop")

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 import marbler_jax
-from marbler_jax_rl.driver import ALGORITHMS, build_config
+from marbler_jax_rl import registry
+from marbler_jax_rl.driver import build_config
 from marbler_jax_rl.networks import QAgent, apply_agents, init_agents, orthogonal
 
 
@@ -43,7 +44,7 @@ def test_vmapped_inits_never_hand_lapack_a_batch_of_matrices():
     env = marbler_jax.make("predator_capture_prey")
     keys = jax.random.split(jax.random.PRNGKey(0), 3)
     for algo, hp in [("ippo", dict(shared=False)), ("qmix_ns", {}), ("vdn", {})]:
-        trainer = ALGORITHMS[algo][1](env, build_config(algo, dict(hp, total_timesteps=10**5)))
+        trainer = registry.get(algo).make_train(env, build_config(algo, dict(hp, total_timesteps=10**5)))
         shapes = _qr_operand_shapes(jax.make_jaxpr(jax.vmap(trainer.init))(keys).jaxpr, [])
         assert shapes, f"{algo}: no QR found -- is the orthogonal initializer still used?"
         assert all(len(s) == 2 for s in shapes), f"{algo}: batched QR operands {sorted(set(shapes))}"

@@ -6,7 +6,8 @@ import dataclasses
 
 import pytest
 
-from marbler_jax_rl.driver import ALGORITHMS, build_config
+from marbler_jax_rl import registry
+from marbler_jax_rl.driver import build_config
 from marbler_jax_rl.recipes import PAPER, RECIPE_NAMES, RECIPES, Recipe, recipe, settings, settings_digest
 
 SCENARIOS = ("predator_capture_prey", "warehouse", "material_transport", "arctic_transport")
@@ -18,10 +19,10 @@ def paper(algo: str):
 
 
 def test_every_algorithm_has_one_typed_recipe_used_on_every_scenario():
-    assert set(RECIPES) == set(ALGORITHMS) == set(PAPER)
+    assert set(RECIPES) == set(registry.names()) == set(PAPER)
     for algo, r in RECIPES.items():
         assert isinstance(r, Recipe) and r.algo == algo
-        assert isinstance(r.config, ALGORITHMS[algo][0])          # the algorithm's own typed config
+        assert isinstance(r.config, registry.get(algo).config)          # the algorithm's own typed config
         with pytest.raises(dataclasses.FrozenInstanceError):
             r.config.lr = 1.0
         hps = {s: settings("recipe", s, algo)[1] for s in SCENARIOS}

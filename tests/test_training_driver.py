@@ -12,7 +12,8 @@ import pytest
 
 import marbler_jax
 from tests.helpers import compile_marks, interrupt_at, tensorboard_steps
-from marbler_jax_rl.driver import (ALGORITHMS, SEED_BATCHING, build_config, default_seed_batching, keep_improved,
+from marbler_jax_rl import registry
+from marbler_jax_rl.driver import (SEED_BATCHING, build_config, default_seed_batching, keep_improved,
                                   load_params, make_tester, seed_best_scores, train)
 from marbler_jax_rl.run import Run, load_run
 from marbler_jax_rl.ippo import IPPOConfig, make_train
@@ -110,7 +111,7 @@ def test_vmapped_seeds_match_mapped_seeds(tmp_path, algo):
     else:
         cfg = build_config("vdn", dict(num_envs=4, buffer_size=8, batch_size=4, train_steps=2, hidden=8, cell="mingru",
                                        num_steps=10, learning_starts=41, total_timesteps=10**6))
-        trainer = ALGORITHMS["vdn"][1](env, cfg)
+        trainer = registry.get("vdn").make_train(env, cfg)
     keys = jax.random.split(jax.random.PRNGKey(5), 2)
     out = {}
     for name in ("vmap", "map"):          # "devices": tests/test_data_parallel.py, in a two-device interpreter
@@ -131,7 +132,7 @@ def test_vmapped_seeds_match_mapped_seeds(tmp_path, algo):
 def test_seeds_are_mapped_for_value_based_learners_on_a_cpu_and_vmapped_otherwise():
     assert [default_seed_batching(a, "cpu") for a in ("vdn", "qmix", "qmix_ns", "mappo", "ippo")] == \
         ["map", "map", "map", "vmap", "vmap"]
-    assert {default_seed_batching(a, "gpu") for a in ALGORITHMS} == {"vmap"}
+    assert {default_seed_batching(a, "gpu") for a in registry.names()} == {"vmap"}
     assert default_seed_batching("vdn") == ("map" if jax.default_backend() == "cpu" else "vmap")
 
 
@@ -159,7 +160,7 @@ def test_greedy_tests_do_not_change_training(tmp_path):
     # the final test equals a direct greedy rollout of each seed's final parameters
     env = marbler_jax.make("simple_navigation")
     cfg = IPPOConfig(total_timesteps=STEPS, **HP)
-    greedy = ALGORITHMS["ippo"][2]
+    greedy = registry.get("ippo").greedy_policy
     params = load_params(tmp_path / "test" / "params.npz")
     keys = jax.random.split(jax.random.PRNGKey(0 + 7919), 2)
     episodes = make_tester(env, lambda p: greedy(env, cfg, p), 8)(params, keys)
@@ -289,9 +290,9 @@ def test_evaluate_reports_the_training_loop_and_the_robots_loop_side_by_side(tmp
     assert result["control_period"] == 15 and result["deployed"]["control_period"] == 1
     # the deployed column is the same policy and start states in the every-tick env
     env1 = marbler_jax.make("simple_navigation", control_period=1)
-    cfg = ALGORITHMS["ippo"][0](**json.loads((run / "config.json").read_text())["algorithm"])
+    cfg = registry.get("ippo").config(**json.loads((run / "config.json").read_text())["algorithm"])
     params = jax.tree_util.tree_map(lambda x: x[0], Run.open(run).params("best"))
-    direct = summarize(greedy_episodes(env1, ALGORITHMS["ippo"][2](env1, cfg, params), 8, jax.random.PRNGKey(0)))
+    direct = summarize(greedy_episodes(env1, registry.get("ippo").greedy_policy(env1, cfg, params), 8, jax.random.PRNGKey(0)))
     assert result["deployed"]["pooled"] == direct
     table = markdown_table(result)
     assert "| metric | training loop (period 15) | robots' loop (period 1, what a bundle deploys) |" in table
