@@ -2,16 +2,23 @@
 from __future__ import annotations
 
 
-def load_script(name: str):
-    """A module of ``scripts/`` (not a package) loaded from its file."""
+def load_script(name: str, folder: str = "scripts"):
+    """A module of ``scripts/`` (or another folder that is not a package) loaded from its file."""
     import importlib.util
+    import sys
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "scripts" / f"{name}.py"
+    path = Path(__file__).resolve().parents[1] / folder / f"{name}.py"
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module          # dataclasses (flax modules) look their module up while it runs
     spec.loader.exec_module(module)
     return module
+
+
+def load_example(name: str):
+    """A module of ``examples/`` loaded from its file."""
+    return load_script(name, "examples")
 
 
 def slow_unless(values, default) -> list:

@@ -91,3 +91,21 @@ def test_jaxmarls_centralised_rollout_manager_batches_the_adapter(pair):
         obs, state, rewards, dones, _ = manager.batch_step(k_step, state, actions)
         assert rewards["__all__"].shape == (6,) and dones["__all__"].shape == (6,)
         assert np.isfinite(np.asarray(obs["__all__"])).all()
+
+
+@pytest.mark.parametrize("updates", [pytest.param(150, marks=pytest.mark.slow), 3])
+def test_an_ippo_script_written_for_jaxmarl_learns_on_predator_capture_prey(pair, updates):
+    """``examples/jaxmarl_ippo.py`` uses JaxMARL's API alone (dict observations, its LogWrapper). 150 updates
+    (307k env steps per seed) on the adapter lift both seeds' per-robot return from about -4.4 (random) to
+    above 5; the default suite runs three updates of the same program."""
+    from tests.helpers import load_example
+
+    ippo = load_example("jaxmarl_ippo")
+    keys = jax.random.split(jax.random.PRNGKey(0), 3)[1:]
+    params, returns = jax.jit(jax.vmap(ippo.make_train(pair[1], updates=updates)))(keys)
+    assert returns.shape == (2, updates)
+    assert all(np.isfinite(np.asarray(leaf)).all() for leaf in jax.tree_util.tree_leaves(params))
+    if updates >= 150:
+        first, last = np.nanmean(np.asarray(returns[:, :10]), 1), np.nanmean(np.asarray(returns[:, -10:]), 1)
+        print(f"JaxMARL IPPO on marbler-jax PCP: {first} -> {last}")
+        assert (first < 0).all() and (last > 5).all(), (first, last)
