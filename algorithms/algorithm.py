@@ -55,4 +55,17 @@ class Algorithm:
         return {f.name for f in dataclasses.fields(self.config)}
 
 
-__all__ = ["Algorithm"]
+def trainer(init: Callable, run: Callable, num_updates: int, steps_per_update: int) -> Callable:
+    """The ``train`` an :class:`Algorithm`'s ``make_train`` returns, from its ``init(key) -> runner`` and
+    ``run(runner, n) -> (runner, metrics)``: ``train(key) -> (params, metrics)`` runs all ``num_updates``
+    updates, and carries ``init``, ``run``, ``num_updates`` and ``steps_per_update`` for the driver."""
+    def train(key):
+        runner, metrics = run(init(key), num_updates)
+        return runner["params"], metrics
+
+    train.init, train.run = init, run
+    train.num_updates, train.steps_per_update = num_updates, steps_per_update
+    return train
+
+
+__all__ = ["Algorithm", "trainer"]

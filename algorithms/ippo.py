@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from .algorithm import trainer
 from .common import episode_info, flatten_params, rollout_metrics
 from .data_parallel import rows_over
 from .networks import ActorCritic, apply_agents, init_agents, with_agent_ids
@@ -245,13 +246,7 @@ def make_train(env, cfg: IPPOConfig):
 
         return jax.lax.scan(one, runner, None, length=num_updates)
 
-    def train(key):
-        runner, metrics = run(init(key), cfg.num_updates)
-        return runner["params"], metrics
-
-    train.init, train.run = init, run
-    train.num_updates, train.steps_per_update = cfg.num_updates, batch
-    return train
+    return trainer(init, run, cfg.num_updates, batch)
 
 
 def policy_tensors(cfg: IPPOConfig, params) -> tuple[dict, dict]:

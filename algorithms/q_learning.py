@@ -60,6 +60,7 @@ import numpy as np
 import optax
 
 from . import buffer as episode_buffer
+from .algorithm import trainer
 from .common import episode_info, flatten_params, rollout_metrics
 from .data_parallel import split_batch, split_rows, whole_on
 from .ippo import global_state
@@ -498,13 +499,7 @@ def make_train(env, cfg: QConfig, mixer: nn.Module):
 
         return jax.lax.scan(one, runner, None, length=num_updates)
 
-    def train(key):
-        runner, metrics = run(init(key), num_updates)
-        return runner["params"], metrics
-
-    train.init, train.run = init, run
-    train.num_updates, train.steps_per_update = num_updates, steps_per_update
-    return train
+    return trainer(init, run, num_updates, steps_per_update)
 
 
 def policy_tensors(cfg: QConfig, params) -> tuple[dict, dict]:

@@ -17,6 +17,7 @@ import numpy as np
 import optax
 
 from marbler_jax_rl.common import episode_info, rollout_metrics
+from marbler_jax_rl.algorithm import trainer
 from marbler_jax_rl.registry import Algorithm
 
 
@@ -110,13 +111,7 @@ def make_train(env, cfg: ReinforceConfig):
 
         return jax.lax.scan(update, runner, None, length=n)
 
-    def train(key):
-        runner, metrics = run(init(key), num_updates)
-        return runner["params"], metrics
-
-    train.init, train.run = init, run
-    train.num_updates, train.steps_per_update = num_updates, steps_per_update
-    return train
+    return trainer(init, run, num_updates, steps_per_update)
 
 
 def greedy_policy(env, cfg: ReinforceConfig, params):
