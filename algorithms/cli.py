@@ -636,6 +636,14 @@ PROTOCOL_HELP = ("marbler: MARBLER's shipped protocol, that of the paper's Table
                  "iteration); default: the recipe's / the run's settings")
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose usage errors are one line naming the argument, the value and where the
+    usage is (``-h``), instead of the usage block followed by the error."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (usage: {self.prog} -h)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .benchmark import PAPER_ALGOS, PAPER_SCENARIOS
     from .driver import SEED_BATCHING
@@ -647,7 +655,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     from marbler_jax import __version__
 
-    parser = argparse.ArgumentParser(prog="marbler-jax", description="Batched Robotarium simulation and MARL in JAX.")
+    parser = OneLineParser(prog="marbler-jax", description="Batched Robotarium simulation and MARL in JAX.")
     parser.add_argument("--version", action="version", version=f"marbler-jax {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="robots swap places under a barrier certificate (batched)")

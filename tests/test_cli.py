@@ -45,6 +45,19 @@ def test_bad_input_is_reported(capsys):
     assert parse_overrides(["a=1", "b=true", "c=safe"]) == {"a": 1, "b": True, "c": "safe"}
 
 
+@pytest.mark.parametrize("argv, message", [
+    (["train", "--seeds", "x"], "marbler-jax train: error: argument --seeds: invalid int value: 'x'"),
+    (["trian"], "marbler-jax: error: argument command: invalid choice: 'trian'"),
+    (["benchmark", "--protocol", "foo"], "marbler-jax benchmark: error: argument --protocol: invalid choice: 'foo'"),
+])
+def test_a_flag_argparse_refuses_is_one_line_naming_it(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.count("\n") == 1 and err.startswith(message), err
+    assert err.rstrip().endswith("-h)")
+
+
 def test_benchmark_dry_run_lists_the_cells_and_trains_nothing(tmp_path, capsys):
     out = tmp_path / "bench"
     args = ["benchmark", "--dry-run", "--algos", "vdn", "mappo", "--scenarios", "simple", "warehouse", "--out", str(out)]
