@@ -27,7 +27,8 @@ from .benchmark import (ABSOLUTE, ENV_NAME, JAXROBOTARIUM_SCENARIOS, PAPER_ALGOS
                         cell_digest, load_results)
 from .driver import atomic_write
 from .evaluate import PAPER
-from .recipes import RECIPES
+from .recipes import RECIPES, settings_digest
+from marbler_jax.scenarios.base import PROTOCOLS, merge_settings
 
 # Table order and direction: True where higher is better.
 METRICS = {"reward": True, "steps": False, "prey_left": False, "material_left": False, "landmarks_left": False,
@@ -184,10 +185,18 @@ def reached(metric: str, ours: float, paper: float | None) -> bool | None:
     return ours >= paper if METRICS[metric] else ours <= paper
 
 
+def recipe_digests(scenario: str, algo: str) -> set[str]:
+    """Settings digests of ``algo``'s current recipe on ``scenario``: as it is, and in each protocol
+    (``benchmark --protocol``)."""
+    env, hp, steps = RECIPES[algo].settings(scenario)
+    return {settings_digest(merge_settings(env, extra), hp, steps)
+            for extra in ({}, *({"protocol": name} for name in PROTOCOLS))}
+
+
 def off_recipe(scenario: str, algo: str, runs: dict) -> bool:
-    """Whether a cell was trained with other settings than ``algo``'s current recipe (an earlier recipe, a
-    ``--total-steps`` budget, a ``--set`` env setting, or a results file that does not say)."""
-    return algo not in RECIPES or cell_digest(runs) != RECIPES[algo].digest(scenario)
+    """Whether a cell was trained with other settings than ``algo``'s current recipe, in any protocol (an
+    earlier recipe, a ``--total-steps`` budget, a ``--set`` env setting, or a results file that does not say)."""
+    return algo not in RECIPES or cell_digest(runs) not in recipe_digests(scenario, algo)
 
 
 OFF_RECIPE_MARK = "†"

@@ -397,6 +397,25 @@ def test_env_and_hp_overrides_are_part_of_a_cells_settings():
             benchmark.check_hp_overrides({name: 2}, ["vdn"])
 
 
+def test_the_report_counts_the_recipe_in_either_protocol_as_the_recipe():
+    """A cell of ``benchmark --protocol marbler`` is the current recipe in MARBLER's protocol, not a cell made
+    with other settings (no †); a ``--set`` override still is."""
+    from marbler_jax_rl import recipes
+    from marbler_jax_rl.report import off_recipe
+
+    chosen = recipes.recipe("vdn")
+
+    def cell(**env_overrides):
+        digest = recipes.settings_digest(*benchmark.cell_settings(chosen, "arctic_transport", env_overrides=env_overrides))
+        return {"run_0": {benchmark.ABSOLUTE: {"recipe": [digest]}}}
+
+    assert not off_recipe("arctic_transport", "vdn", cell())
+    assert not off_recipe("arctic_transport", "vdn", cell(protocol="marbler"))
+    assert not off_recipe("arctic_transport", "vdn", cell(protocol="robots"))
+    assert off_recipe("arctic_transport", "vdn", cell(control_period=15))
+    assert off_recipe("arctic_transport", "vdn", cell(protocol="marbler", control_period=1))
+
+
 def test_benchmark_rejects_bad_settings(tmp_path):
     with pytest.raises(ValueError, match="seeds must be an integer >= 1, got 0"):
         run_benchmark(tmp_path, seeds=0)
