@@ -54,7 +54,8 @@ def test_an_unknown_algorithm_is_one_clear_error(name, message):
 
 
 def test_an_outside_algorithm_trains_acts_and_exports_through_the_interface(example_on_path):
-    """MODULE:NAME finds the example; its trainer, greedy policy and exported numpy policy agree."""
+    """MODULE:NAME finds the example; its trainer, greedy policy and exported numpy policy agree (the default
+    suite's short version of the installed package's benchmark -> report -> export run below)."""
     algorithm = registry.get(REFERENCE)
     assert algorithm.name == REFERENCE and REFERENCE in registry.names()
     assert recipe(REFERENCE).config == algorithm.config()            # no recipe of its own: its defaults
@@ -83,6 +84,7 @@ def _cli(args, pythonpath: Path, cwd: Path) -> str:
     return done.stdout
 
 
+@pytest.mark.slow
 def test_an_installed_algorithm_package_runs_through_benchmark_report_and_export(tmp_path):
     """``pip install examples/reinforce`` (into a folder of its own), then the benchmark, the report and a
     Robotarium bundle by the name its entry point declares, with nothing of marbler-jax changed."""
