@@ -27,6 +27,11 @@ def rollout_metrics(done, info) -> dict:
             "out_of_bounds_rate": at_done(info["episode_out_of_bounds"]), "episodes": count}
 
 
+def float32_tensors(params, sep: str = ".") -> dict[str, np.ndarray]:
+    """:func:`flatten_params` of ``params`` as ``float32`` arrays (what a numpy policy folder holds)."""
+    return {name: np.asarray(value, np.float32) for name, value in flatten_params(params, sep).items()}
+
+
 def flatten_params(params, sep: str = "/") -> dict[str, np.ndarray]:
     """A parameter pytree of nested dicts as ``{"a<sep>b<sep>c": array}``."""
     return {sep.join(str(getattr(k, "key", k)) for k in key_path): np.asarray(v)

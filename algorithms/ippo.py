@@ -27,7 +27,7 @@ import numpy as np
 import optax
 
 from .algorithm import trainer
-from .common import episode_info, flatten_params, rollout_metrics
+from .common import episode_info, float32_tensors, rollout_metrics
 from .data_parallel import rows_over
 from .networks import ActorCritic, apply_agents, init_agents, with_agent_ids
 
@@ -256,7 +256,7 @@ def policy_tensors(cfg: IPPOConfig, params) -> tuple[dict, dict]:
     layers = sorted(actor, key=lambda name: int(name.split("_")[-1]))
     fields = dict(kind="actor", recurrent=False, cell="none", hidden=cfg.hidden, activation=cfg.activation,
                   layers=[f"actor.{name}" for name in layers], shared=bool(cfg.shared), agent_ids=bool(cfg.agent_ids))
-    return fields, {name: np.asarray(v, np.float32) for name, v in flatten_params({"actor": actor}, ".").items()}
+    return fields, float32_tensors({"actor": actor})
 
 
 def greedy_policy(env, cfg: IPPOConfig, params):

@@ -35,8 +35,7 @@ def orthogonal(scale: float = 1.0):
     Orthogonal draws take a QR decomposition. With jaxlib 0.10.2 the CPU QR (LAPACK ``geqrf`` FFI)
     splits a *batch* of matrices -- what ``vmap`` over seeds or agents makes of it -- over XLA's
     intra-op thread pool and waits for the parts on a pool thread; two such calls at once fill a
-    2-thread pool with waiters and the program hangs forever (seen with gdb: both pool threads in
-    ``lapack_sgeqrf_ffi`` -> ``BlockingCounter::Wait``). A custom vmap rule therefore draws a batch
+    2-thread pool with waiters and the program hangs forever. A custom vmap rule therefore draws a batch
     one matrix after another (``lax.map``), so no batched QR ever reaches LAPACK.
     """
     base = nn.initializers.orthogonal(scale)

@@ -61,7 +61,7 @@ import optax
 
 from . import buffer as episode_buffer
 from .algorithm import trainer
-from .common import episode_info, flatten_params, rollout_metrics
+from .common import episode_info, float32_tensors, rollout_metrics
 from .data_parallel import split_batch, split_rows, whole_on
 from .ippo import global_state
 from .networks import QAgent, apply_agents, init_agents, with_agent_ids
@@ -510,7 +510,7 @@ def policy_tensors(cfg: QConfig, params) -> tuple[dict, dict]:
     fields = dict(kind="q_agent", recurrent=memory != "none", cell=memory, layer_norm=bool(cfg.layer_norm),
                   last_action=bool(cfg.last_action), hidden=cfg.hidden, activation="relu", layers=[],
                   shared=bool(cfg.shared), agent_ids=bool(cfg.agent_ids))
-    return fields, {name: np.asarray(v, np.float32) for name, v in flatten_params(agent, ".").items()}
+    return fields, float32_tensors(agent)
 
 
 def greedy_policy(env, cfg: QConfig, params) -> StatefulPolicy:

@@ -52,7 +52,7 @@ NEVER = 2**31 - 1          # a learning_starts no run reaches: collection only
 EVAL_POINTS = 20           # greedy tests per cell (marbler-jax benchmark's default)
 
 
-def variants(algo: str, hp: dict) -> dict[str, dict]:
+def variants(hp: dict) -> dict[str, dict]:
     """The programs whose differences give the parts: ``{name: overrides}``."""
     if "train_steps" in hp:
         half = max(1, hp["train_steps"] // 2)
@@ -61,7 +61,7 @@ def variants(algo: str, hp: dict) -> dict[str, dict]:
     return {"whole": {}, "one epoch": {"update_epochs": 1}}
 
 
-def parts(algo: str, hp: dict, seconds: dict[str, float], env_seconds: float) -> dict[str, float]:
+def parts(hp: dict, seconds: dict[str, float], env_seconds: float) -> dict[str, float]:
     """Seconds per update of each part from the variants' ``seconds`` and the env alone's."""
     whole = seconds["whole"]
     if "train_steps" in hp:
@@ -124,9 +124,9 @@ def profile(algo: str, scenario: str, protocol: str | None, seeds: int, batching
     protocol_setting = {"protocol": protocol} if protocol else {}
     env_settings = merge_settings(env_settings, protocol_setting)
     prepared = [prepare(scenario, algo, "recipe", updates, seeds, learner_devices, dict(protocol_setting, **overrides),
-                        batching) for overrides in variants(algo, hp).values()]
+                        batching) for overrides in variants(hp).values()]
     rows = time_in_turns(prepared, repeats)
-    seconds = {name: row["seconds"] / updates for name, row in zip(variants(algo, hp), rows)}
+    seconds = {name: row["seconds"] / updates for name, row in zip(variants(hp), rows)}
     steps_per_update = rows[0]["env_steps"] // (updates * seeds)
     env = marbler_jax.make(scenario, **env_settings)
     episode = steps_per_update // hp["num_envs"]
@@ -135,7 +135,7 @@ def profile(algo: str, scenario: str, protocol: str | None, seeds: int, batching
     chunk = max(1, cell_updates // EVAL_POINTS)
     chunk_work = time_chunk_work(scenario, algo, env_settings, hp, seeds, batching,
                                  test_episodes, repeats)
-    per_update = parts(algo, hp, seconds, env_seconds)
+    per_update = parts(hp, seconds, env_seconds)
     per_update.update({f"greedy test ({test_episodes} episodes per seed, every {chunk} updates)":
                        chunk_work["test"] / chunk,
                        "runner state to the host": chunk_work["host"] / chunk,

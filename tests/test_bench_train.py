@@ -42,13 +42,13 @@ def test_the_profile_splits_an_update_by_difference():
     """``scripts/profile_train.py``: parts from programs that differ in one setting (no JAX work here)."""
     profile = load_script("profile_train")
     value = dict(train_steps=32)
-    assert set(profile.variants("vdn", value)) == {"whole", "no learning", "half the gradient steps"}
-    parts = profile.parts("vdn", value, {"whole": 10.0, "no learning": 2.0, "half the gradient steps": 6.0}, 1.5)
+    assert set(profile.variants(value)) == {"whole", "no learning", "half the gradient steps"}
+    parts = profile.parts(value, {"whole": 10.0, "no learning": 2.0, "half the gradient steps": 6.0}, 1.5)
     # 16 fewer steps saved 4 s: 32 steps take 8 s, leaving 0 s of the 8 s of learning for the targets
     assert parts == {"env step": 1.5, "action selection and buffer": 0.5, "gradient steps (32)": 8.0,
                      "targets and the rest of learning": 0.0}
     ppo = dict(update_epochs=4, num_minibatches=4)
-    assert set(profile.variants("mappo", ppo)) == {"whole", "one epoch"}
-    parts = profile.parts("mappo", ppo, {"whole": 5.0, "one epoch": 2.0}, 0.5)
+    assert set(profile.variants(ppo)) == {"whole", "one epoch"}
+    parts = profile.parts(ppo, {"whole": 5.0, "one epoch": 2.0}, 0.5)
     # three epochs more cost 3 s: four take 4 s, the rollout the remaining 1 s, of which 0.5 s is the env
     assert parts == {"env step": 0.5, "action selection and advantages": 0.5, "epochs (4 x 4 minibatches)": 4.0}
