@@ -378,7 +378,8 @@ def _benchmark_distributed(args) -> int:
 def _report(args) -> int:
     from .report import write_report
 
-    written = write_report(args.results, args.out, reps=args.reps, results_md=args.results_md, readme=args.readme)
+    written = write_report(args.results, args.out, reps=args.reps, results_md=args.results_md, readme=args.readme,
+                           progress=not args.no_progress)
     print("\n".join(f"written: {p}" for p in written))
     return 0
 
@@ -741,6 +742,8 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--seed-index", type=_seed_choice, default="best",
                     help="which of the run's seeds to export: an index, or best (the one `evaluate --best-seed` "
                          "reports)")
+    ex.add_argument("--best-seed", dest="seed_index", action="store_const", const="best",
+                    help="the seed `evaluate --best-seed` reports (the default; same as --seed-index best)")
     ex.add_argument("--bundle", default=None,
                     help="also write a flat Robotarium submission bundle (main.py + files) to this folder")
     ex.add_argument("--episodes", type=int, default=2, help="episodes the bundle runs (start states drawn now)")
@@ -758,6 +761,8 @@ def build_parser() -> argparse.ArgumentParser:
     rd.add_argument("--checkpoint", default=DEFAULT_CHECKPOINT, choices=CHECKPOINTS, help=CHECKPOINT_HELP)
     rd.add_argument("--seed-index", type=_seed_choice, default="best",
                     help="which of the run's seeds: an index, or best (the one `evaluate --best-seed` reports)")
+    rd.add_argument("--best-seed", dest="seed_index", action="store_const", const="best",
+                    help="the seed `evaluate --best-seed` reports (the default; same as --seed-index best)")
     rd.add_argument("--seed", type=int, default=0, help="episode randomness")
     rd.add_argument("--fps", type=float, default=6.0)
     rd.add_argument("--set", action="append", default=[], help="scenario config override key=value")
@@ -825,6 +830,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="also write the report as a results page (the project's RESULTS.md)")
     rp.add_argument("--readme", default=None, metavar="FILE",
                     help="also rewrite the reward summary of FILE (the project's README.md) between its markers")
+    rp.add_argument("--no-progress", action="store_true", help="no progress bar")
     rp.set_defaults(func=_report)
     qs = sub.add_parser("quickstart", help="the main job: train, evaluate, plot and render (a few minutes)")
     qs.add_argument("--out", default="runs/quickstart")

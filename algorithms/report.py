@@ -548,10 +548,13 @@ every seed; the wall time of each cell is in its runs' `absolute_metrics`.
 
 
 def write_report(folder: str | Path, out: str | Path | None = None, reps: int = 2000,
-                 results_md: str | Path | None = None, readme: str | Path | None = None) -> list[Path]:
+                 results_md: str | Path | None = None, readme: str | Path | None = None,
+                 progress: bool = False) -> list[Path]:
     """``report.md`` and ``curves_<scenario>.png`` of the benchmark in ``folder`` (into ``out``), with
     ``results_md`` the same report as the project's results page (image links relative to it), and with
-    ``readme`` that file's reward summary (:func:`summary_table`, between its markers) rewritten."""
+    ``readme`` that file's reward summary (:func:`summary_table`, between its markers) rewritten.
+    ``progress``: a bar over the scenarios' curves, then the tables (the bootstraps take minutes for a
+    whole table, seconds once ``.report-cache.json`` holds them)."""
     if not isinstance(reps, int) or reps < 10:
         raise ValueError(f"reps must be an integer >= 10, got {reps!r}")
     folder = Path(folder)
@@ -566,13 +569,21 @@ def write_report(folder: str | Path, out: str | Path | None = None, reps: int = 
     out = Path(out) if out else folder
     out.mkdir(parents=True, exist_ok=True)
     written = []
-    with bootstrap_cache(out / CACHE_FILE):
-        for scenario, runs_by_algo in results.get(ENV_NAME, {}).items():
+    from tqdm.auto import tqdm
+
+    scenarios = results.get(ENV_NAME, {})
+    with bootstrap_cache(out / CACHE_FILE), tqdm(total=len(scenarios) + 1, unit="part", disable=not progress,
+                                                 dynamic_ncols=True) as bar:
+        for scenario, runs_by_algo in scenarios.items():
+            bar.set_description(f"curves of {scenario}")
             png = out / f"curves_{scenario}.png"
             plot_curves(scenario, runs_by_algo, png, reps)
             written.append(png)
+            bar.update()
+        bar.set_description("tables")
         report = out / "report.md"
         body = report_markdown(results, reps)          # the bootstraps run once for both documents
+        bar.update()
         atomic_write(report, "## MARBLER benchmark\n\n" + body)
         written.insert(0, report)
         if results_md:

@@ -218,6 +218,20 @@ def test_report_marks_a_cell_made_with_its_recipes_own_settings_for_the_scenario
     assert "| predator_capture_prey | vdn† | 1 |" in report.report_markdown(results, reps=20)
 
 
+def test_report_shows_its_progress_unless_told_not_to(tmp_path, capsys):
+    """The report's bootstraps take minutes on a whole table: the command shows a bar over its parts."""
+    from marbler_jax_rl.cli import main as cli
+
+    results = {ENV_NAME: {"warehouse": {"vdn": _runs([[30.0, 31.0], [20.0, 22.0]])},
+                          "predator_capture_prey": {"vdn": _runs([[30.0, 31.0], [20.0, 22.0]])}}}
+    (tmp_path / "results.json").write_text(json.dumps(results))
+    assert cli(["report", str(tmp_path), "--reps", "20"]) == 0
+    err = capsys.readouterr().err
+    assert "tables" in err and "3/3" in err and "curves of warehouse" in err
+    assert cli(["report", str(tmp_path), "--reps", "20", "--no-progress"]) == 0
+    assert capsys.readouterr().err == ""
+
+
 def test_a_second_report_bootstraps_only_what_changed(tmp_path, monkeypatch):
     from rliable import library
 

@@ -273,6 +273,10 @@ def test_every_command_that_reads_a_run_defaults_to_the_same_checkpoint(tmp_path
     defaults = {cmd: parser.parse_args([cmd, "RUN", "--out", "X"] if cmd != "evaluate" else [cmd, "RUN"]).checkpoint
                 for cmd in ("evaluate", "export", "render")}
     assert defaults == dict.fromkeys(defaults, DEFAULT_CHECKPOINT)
+    for cmd in ("export", "render"):      # the seed evaluate --best-seed reports, by default and by name
+        assert parser.parse_args([cmd, "RUN", "--out", "X"]).seed_index == "best"
+        assert parser.parse_args([cmd, "RUN", "--out", "X", "--seed-index", "1", "--best-seed"]).seed_index == "best"
+        assert parser.parse_args([cmd, "RUN", "--out", "X", "--seed-index", "1"]).seed_index == 1
     for fn in (evaluate_run, export_policy, load_run, Run.params, Run.seed_params, Run.policy):
         assert inspect.signature(fn).parameters["checkpoint"].default == DEFAULT_CHECKPOINT, fn
     with pytest.raises(ValueError, match="is not a run folder"):

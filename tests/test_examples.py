@@ -89,14 +89,3 @@ def test_coverage_trains_from_the_cli_and_exports_a_jax_free_bundle(tmp_path):
     out = subprocess.run([sys.executable, "-c", script], cwd=tmp_path / "bundle", capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert out.stdout.startswith("(3, 12) (3,) (3, 2)")
-
-
-def test_the_readme_python_example_runs():
-    """The README's Python snippet is code a newcomer copies: it must run as written."""
-    import re
-
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    code = re.search(r"```python\n(.*?)```", readme, re.S).group(1)
-    scope: dict = {}
-    exec(compile(code, "README.md", "exec"), scope)
-    assert scope["obs"].shape == (4096, 4, 16) and scope["rewards"].shape == (4096, 4)

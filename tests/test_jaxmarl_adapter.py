@@ -41,11 +41,12 @@ def test_the_adapter_is_a_jaxmarl_env_that_steps_as_the_env_does(pair):
     np.testing.assert_array_equal(adapted.get_state(state), env.observe(state).reshape(-1))
     assert all(bool(v.all()) for v in adapted.get_avail_actions(state).values())
     key = jax.random.PRNGKey(1)
+    step, raw_step = jax.jit(adapted.step), jax.jit(env.step)   # compiled, as a JaxMARL script runs them
     for t in range(env.max_steps + 2):                    # through an episode's end and the auto-reset
         key, k_act, k_step = jax.random.split(key, 3)
         actions = random_actions(adapted, k_act)
-        obs, state, rewards, dones, info = adapted.step(k_step, state, actions)
-        raw = env.step(k_step, raw_state, jnp.stack([actions[a] for a in adapted.agents]))
+        obs, state, rewards, dones, info = step(k_step, state, actions)
+        raw = raw_step(k_step, raw_state, jnp.stack([actions[a] for a in adapted.agents]))
         raw_obs, raw_state, raw_rewards, raw_done, raw_info = raw
         np.testing.assert_array_equal(np.stack([obs[a] for a in adapted.agents]), raw_obs)
         np.testing.assert_array_equal(np.stack([rewards[a] for a in adapted.agents]), raw_rewards)
