@@ -26,9 +26,7 @@ takes every ``n``-th cell and writes ``results-p<i>.json``; ``marbler-jax report
 from __future__ import annotations
 
 import dataclasses
-import fcntl
 import json
-import os
 import time
 from pathlib import Path
 
@@ -36,16 +34,17 @@ import jax
 import numpy as np
 
 import marbler_jax
-from .checkpoints import latest_step, read_json, read_json_lines
+from .checkpoints import atomic_write
 from . import registry
-from .driver import (TESTS_FILE, atomic_write, build_config, changed_settings, has_setting,
-                     make_tester, run_config, seed_best_scores, train)
+from .driver import build_config, has_setting, make_tester, train_run
+from .run import Run
+from .results_file import ABSOLUTE, ENV_NAME, add_cell, load_results, read_results, results_name
+from .run_writer import changed_settings, run_config
 from .recipes import recipe, settings_digest
 from .writer_lock import writer_lock
 from marbler_jax.registry import canonical_name
 from marbler_jax.scenarios.base import merge_settings
 
-ENV_NAME = "marbler"
 PAPER_ALGOS = ("vdn", "qmix", "qmix_ns", "mappo", "ippo")
 PAPER_SCENARIOS = ("predator_capture_prey", "warehouse", "material_transport", "arctic_transport")
 DEFAULT_RESULTS = {None: "results/marbler-table2", "robots": "results/marbler-table2",
@@ -54,7 +53,6 @@ DEFAULT_RESULTS = {None: "results/marbler-table2", "robots": "results/marbler-ta
 MARBLER's protocol, the like-for-like comparison with the paper."""
 # JaxRobotarium's scenarios: benchmark rows without paper values (``--scenarios`` names them)
 JAXROBOTARIUM_SCENARIOS = ("discovery", "foraging", "rware")
-ABSOLUTE = "absolute_metrics"
 WALL_FILE = "wall_seconds.json"
 UNRECORDED_DEVICE = "device not recorded"
 
@@ -86,38 +84,6 @@ class WallClock:
         """The devices that trained the cell, in order, each once (``"NVIDIA H200 + cpu"`` for a cell
         resumed on a CPU)."""
         return " + ".join(dict.fromkeys(self.devices))
-
-
-def results_name(process_index: int = 0, process_count: int = 1) -> str:
-    """The results file one process writes (``results.json`` alone, ``results-p<i>.json`` among several)."""
-    return "results.json" if process_count == 1 else f"results-p{process_index}.json"
-
-
-def load_results(folder: str | Path) -> dict:
-    """Every ``results*.json`` of ``folder`` merged into one marl-eval dict."""
-    merged: dict = {}
-    for path in sorted(Path(folder).glob("results*.json")):
-        data = read_json(path)
-        for env_name, tasks in data.items():
-            for task, algos in tasks.items():
-                merged.setdefault(env_name, {}).setdefault(task, {}).update(algos)
-    return merged
-
-
-def add_cell(path: Path, scenario: str, algo: str, runs: dict) -> dict:
-    """Write one cell's ``runs`` into the results file ``path``; returns the file's new contents.
-
-    The file is read again under an exclusive lock on its folder and the cell merged in, so cells
-    that other processes wrote into the same file since this one started are kept."""
-    folder = os.open(path.parent, os.O_RDONLY)
-    try:
-        fcntl.flock(folder, fcntl.LOCK_EX)
-        results = read_json(path, {})
-        results.setdefault(ENV_NAME, {}).setdefault(scenario, {})[algo] = runs
-        atomic_write(path, json.dumps(results))
-        return results
-    finally:
-        os.close(folder)         # closing the descriptor releases the lock
 
 
 def cell_settings(chosen, scenario: str, total_steps: int | None = None, env_overrides: dict | None = None,
@@ -217,7 +183,7 @@ def plan_cells(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS, se
     check_hp_overrides(hp_overrides or {}, algos)
     cells = grid(algos, scenarios, process_index, process_count)
     path = Path(out) / results_name(process_index, process_count)
-    results = read_json(path, {})
+    results = read_results(path)
     held = {cell: cell_digest(results[ENV_NAME][cell[0]][cell[1]]) for cell in finished_cells(results)}
     plans = []
     for scenario, algo in cells:
@@ -230,12 +196,12 @@ def plan_cells(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS, se
         checkpoint = None
         if held.get((scenario, algo)) == digest:
             status = "done"
-        elif not (run / "config.json").exists():
+        elif not Run.holds_run(run):
             status = "new"
         elif changed_settings(run, run_config(scenario, algo, seeds, seed, env, cfg, test_episodes), env):
             status = "restart"
         else:
-            checkpoint = latest_step(run / "checkpoints")
+            checkpoint = Run.open(run).latest_checkpoint()
             status = "new" if checkpoint is None else "resume"
         plans.append(CellPlan(scenario, algo, env_settings, hp, steps, digest,
                               registry.get(algo).make_train(env, cfg).num_updates, status, checkpoint,
@@ -309,13 +275,9 @@ def cell_runs(run: Path, env, greedy_of_params, seeds: int, absolute_episodes: i
     """The marl-eval ``{"run_<k>": ...}`` entries of a trained cell's run folder ``run``: every seed's best
     checkpoint plays ``absolute_episodes`` fresh greedy episodes, all seeds in one program. ``digest``
     (:func:`~marbler_jax_rl.recipes.settings_digest` of the cell's settings) is kept as ``recipe``."""
-    from .run import Run
-
-    tests = read_json_lines(run / TESTS_FILE)
-    lines = [line for line in (run / "metrics.jsonl").read_text().splitlines() if line.strip()]
-    metrics = [json.loads(line) for line in lines]
-    best_scores = seed_best_scores(lines, seeds, tested=True)
-    absolute = make_tester(env, greedy_of_params, absolute_episodes)(Run.open(run).params("best"),
+    opened = Run.open(run)
+    tests, metrics, best_scores = opened.tests(), opened.metrics(), opened.best_scores()
+    absolute = make_tester(env, greedy_of_params, absolute_episodes)(opened.params("best"),
                                                                       jax.random.split(key, seeds))
     absolute = jax.tree_util.tree_map(np.asarray, absolute)
     runs = {}
@@ -338,7 +300,6 @@ def publish_policy(run: Path, target: Path) -> dict:
     reports) from its best checkpoint as the numpy policy folder ``target``, so the table's policies can be
     evaluated, rendered and deployed without retraining; returns the policy spec."""
     from .export import export_policy
-    from .run import Run
 
     index = Run.open(run).best_seed()[0]
     return export_policy(run, target, seed_index=index, force=True)
@@ -382,7 +343,7 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
             + (f"; {redo} of its cells were made with other settings and train again" if redo else ""))
         spent_steps, spent_seconds = 0, 0.0
         budgets = [plan.steps * seeds for plan in todo]
-        results = read_json(path, {})
+        results = read_results(path)
         for i, plan in enumerate(todo):
             k = len(plans) - len(todo) + i + 1
             scenario, algo, env_settings, steps = plan.scenario, plan.algo, plan.env_settings, plan.steps
@@ -396,7 +357,7 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
             run = out / "runs" / scenario / algo
             if plan.status == "restart":
                 log(f"{run} holds a run with other settings: moved to {set_aside(run)}")
-            resume = plan.status != "restart" and (run / "config.json").exists()
+            resume = plan.status != "restart" and Run.holds_run(run)
             clock = WallClock(run, resume, jax.devices()[0].device_kind)
 
             def chunk_saved(update):
@@ -404,9 +365,9 @@ def run_benchmark(out: str | Path, algos=PAPER_ALGOS, scenarios=PAPER_SCENARIOS,
                 if on_chunk is not None:
                     on_chunk(update)
 
-            train(scenario, algo, steps, seeds, run, env_overrides=env_settings, hp=hp, eval_episodes=0,
-                  checkpoint_every=max(1, plan.updates // eval_points), resume=resume, seed=seed,
-                  progress=progress, log=log, test_episodes=test_episodes, on_chunk=chunk_saved)
+            train_run(scenario, algo, steps, seeds, run, env_overrides=env_settings, hp=hp, seed=seed,
+                      test_episodes=test_episodes, resume=resume, on_chunk=chunk_saved, log=log, eval_episodes=0,
+                      checkpoint_every=max(1, plan.updates // eval_points), progress=progress)
             greedy = registry.get(algo).greedy_policy
             runs = cell_runs(run, env, lambda p: greedy(env, cfg, p), seeds, absolute_factor * test_episodes,
                              jax.random.PRNGKey(seed + 2024), plan.digest)

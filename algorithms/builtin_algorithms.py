@@ -1,5 +1,5 @@
 """The five built-in algorithms as :class:`~marbler_jax_rl.algorithm.Algorithm` records (their recipes are
-:data:`marbler_jax_rl.recipes.RECIPES` and ``PAPER``; :mod:`marbler_jax_rl.registry` registers them)."""
+:data:`marbler_jax_rl.recipes.RECIPES` and ``PAPER_RECIPES``; :mod:`marbler_jax_rl.registry` registers them)."""
 from __future__ import annotations
 
 from . import ippo, mappo, q_learning, qmix, vdn

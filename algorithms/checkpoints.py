@@ -111,18 +111,18 @@ def latest_step(directory: Path) -> int | None:
         manager.close()
 
 
-def restore_latest(manager, template=None, warn: Callable[[str], None] = print):
+def restore_latest(manager, template=None, warn: Callable[[str], None] = print, manifests: bool = True):
     """``(step, tree)`` of the newest intact step of ``manager`` (``(None, None)`` when it has none).
 
     A step is intact when its manifest matches and orbax restores it. Newer steps that are not are
     reported through ``warn`` (one line each) and moved to ``<checkpoints>.damaged/`` (kept for a look,
-    out of orbax's way), so the run writes them anew. A run folder
-    from before manifests (no step has one) is trusted on orbax's restore alone. ``ValueError`` when
-    steps exist but none is intact."""
+    out of orbax's way), so the run writes them anew. ``manifests=False`` (a run folder from before
+    manifests): where no step has one, orbax's restore alone is trusted. ``ValueError`` when steps exist
+    but none is intact."""
     import orbax.checkpoint as ocp
 
     steps = sorted(manager.all_steps(), reverse=True)
-    verified = any((step_folder(manager, s) / MANIFEST).exists() for s in steps)
+    verified = manifests or any((step_folder(manager, s) / MANIFEST).exists() for s in steps)
     args = ocp.args.StandardRestore(template) if template is not None else ocp.args.StandardRestore()
     for step in steps:
         problem = manifest_problem(step_folder(manager, step)) if verified else None

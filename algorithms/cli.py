@@ -193,18 +193,8 @@ def _list(args) -> int:
     return 0
 
 
-def _restart_resumed(argv, idle: float) -> None:
-    """Replace this hung process by the same ``train`` command with ``--resume`` (bit-exact continuation)."""
-    from .hang_guard import hang_message, resume_argv
-
-    print(f"marbler-jax: {hang_message(idle)}; restarting from the last checkpoint with --resume",
-          file=sys.stderr, flush=True)
-    sys.stdout.flush()
-    os.execv(sys.executable, [sys.executable, "-m", "marbler_jax_rl", *resume_argv(argv)])
-
-
 def _train(args) -> int:
-    from .driver import train
+    from .driver import train_run
     from .recipes import settings
     from marbler_jax.registry import canonical_name
 
@@ -224,13 +214,10 @@ def _train(args) -> int:
         use_cpu_devices(os.cpu_count() or 1)
     elif isinstance(hp.get("learner_devices"), int):
         use_cpu_devices(hp["learner_devices"])
-    total = args.total_steps or steps
-    if args.hang_seconds < 0:
-        raise ValueError(f"--hang-seconds must be >= 0 (0 = off), got {args.hang_seconds}")
-    train(args.scenario, args.algo, total, args.seeds, args.out, env_overrides=env_overrides, hp=hp,
-          checkpoint_every=args.checkpoint_every, resume=args.resume, seed=args.seed, progress=not args.no_progress,
-          seed_batching=args.seed_batching, hang_seconds=args.hang_seconds, test_episodes=args.test_episodes,
-          eval_episodes=args.eval_episodes, on_hang=lambda idle: _restart_resumed(args.argv, idle))
+    train_run(args.scenario, args.algo, args.total_steps or steps, args.seeds, args.out, env_overrides=env_overrides,
+              hp=hp, seed=args.seed, test_episodes=args.test_episodes, resume=args.resume,
+              checkpoint_every=args.checkpoint_every, eval_episodes=args.eval_episodes,
+              seed_batching=args.seed_batching, progress=not args.no_progress)
     print(f"run folder: {args.out}")
     return 0
 
@@ -473,7 +460,7 @@ def _print_bundle(folder: Path) -> None:
 def _evaluate(args) -> int:
     import json
 
-    from .driver import atomic_write
+    from .checkpoints import atomic_write
     from .evaluate import evaluate_policy, evaluate_run, markdown_table
     from marbler_jax.numpy_policy import SPEC_FILE
 
@@ -525,7 +512,7 @@ def _import(args) -> int:
 
 
 def _quickstart(args) -> int:
-    from .driver import train
+    from .driver import train_run
 
     from marbler_jax.deploy.bundle import building, check_target
 
@@ -539,7 +526,7 @@ def _quickstart(args) -> int:
         print(f"replacing the earlier run in {final} once this one has finished")
     with building(final) as out:                   # built beside it under a name of its own, swapped in at the end
         env_overrides, hp, steps = settings("recipe", "simple_navigation", "ippo")    # what `train` would run
-        result = train("simple_navigation", "ippo", steps, 2, out, env_overrides=env_overrides, hp=hp)
+        result = train_run("simple_navigation", "ippo", steps, 2, out, env_overrides=env_overrides, hp=hp)
         _episode_gif(out, out / "episode.gif")
         export_policy(out, out / "policy", seed_index=Run.open(out).seed_index("best"), bundle=out / "robotarium")
     out = final
@@ -658,6 +645,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser = OneLineParser(prog="marbler-jax", description="Batched Robotarium simulation and MARL in JAX.")
     parser.add_argument("--version", action="version", version=f"marbler-jax {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show the whole traceback of an error")
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="robots swap places under a barrier certificate (batched)")
     demo.add_argument("--robots", type=int, default=12, help="robots per team (1-50)")
@@ -710,9 +698,6 @@ def build_parser() -> argparse.ArgumentParser:
                     help="continue the run in --out from its latest checkpoint, with the settings its config.json "
                          "holds (options given must agree with them)")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
-    tr.add_argument("--hang-seconds", type=float, default=120.0,
-                    help="restart with --resume when the process used no CPU for this long inside a "
-                         "training chunk (the jaxlib 0.10.2 CPU hang); 0 = off")
     tr.add_argument("--seed-batching", choices=list(SEED_BATCHING), default=None,
                     help="vmap: seeds vectorized in one batch; map: one after another in the program; devices: the "
                          "seeds spread over the devices (on a CPU, one device per core); default: map for VDN, "
@@ -853,7 +838,17 @@ def main(argv=None) -> int:
     args.argv = argv
     try:
         return args.func(args)
-    except (ValueError, TypeError) as err:
+    except BrokenPipeError:
+        # the reader of stdout left (e.g. `| head`): nothing more to say, and nothing to flush at exit
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    except (ValueError, TypeError, OSError) as err:
+        if args.debug:
+            raise
+        if isinstance(err, OSError):            # disk full, a file where a folder should be, no permission
+            where = f": {err.filename}" if err.filename else ""
+            print(f"marbler-jax: error: {err.strerror or err}{where}", file=sys.stderr)
+            return 1
         print(f"marbler-jax: error: {err}", file=sys.stderr)
         return 2
     except Busy as err:                     # another process writes the same run folder / results file
@@ -862,10 +857,6 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print(f"marbler-jax: interrupted{_resume_hint(args)}", file=sys.stderr)
         return 130
-    except BrokenPipeError:
-        # the reader of stdout left (e.g. `| head`): nothing more to say, and nothing to flush at exit
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 0
 
 
 def _resume_hint(args) -> str:

@@ -36,3 +36,9 @@ def flatten_params(params, sep: str = "/") -> dict[str, np.ndarray]:
     """A parameter pytree of nested dicts as ``{"a<sep>b<sep>c": array}``."""
     return {sep.join(str(getattr(k, "key", k)) for k in key_path): np.asarray(v)
             for key_path, v in jax.tree_util.tree_flatten_with_path(params)[0]}
+
+
+def global_state(obs):
+    """The global state of MARBLER's learners: every agent's observation concatenated,
+    ``[..., N, D] -> [..., N * D]``."""
+    return obs.reshape(obs.shape[:-2] + (obs.shape[-2] * obs.shape[-1],))

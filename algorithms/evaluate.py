@@ -6,7 +6,7 @@ batched envs, fresh random initial states) and reports, per seed and pooled over
 and standard deviation of: Reward (team episode return), Steps (episode length, set to the maximum
 when the episode ended by a violation, as the paper does), Prey Left (PCP) / Material Left (MT),
 and the percentage of episodes with a collision / a boundary violation. The paper's simulated
-numbers are listed beside ours where the paper has them (``PAPER``).
+numbers are listed beside ours where the paper has them (``PAPER_TABLE2``).
 
 The paper's Table II is not a mean over seeds: it trained five seeds per algorithm, "took the model
 that achieved the highest reward" and ran that one model for 100 episodes. ``seed_selection="best"``
@@ -26,7 +26,7 @@ from . import registry
 from .run import DEFAULT_CHECKPOINT, Run
 
 # MARBLER paper, Table II, simulated experiments: (mean, std) per scenario / algorithm / metric.
-PAPER = {
+PAPER_TABLE2 = {
     "predator_capture_prey": {
         "mappo": {"reward": (23.48, 5.33), "steps": (80.4, 1.8), "prey_left": (1.6, 0.92)},
         "vdn": {"reward": (33.25, 0.46), "steps": (55.0, 9.18), "prey_left": (0.0, 0.0)},
@@ -117,7 +117,7 @@ def evaluate_run(run, episodes: int = 100, checkpoint: str = DEFAULT_CHECKPOINT,
                   seeds=n_seeds, seed_selection=seed_selection, seed_indices=list(seeds),
                   control_period=env.config.control_period, protocol=env.config.protocol,
                   pooled=summaries["trained"], per_seed=per_seed["trained"],
-                  paper=PAPER.get(config["scenario"], {}).get(config["algo"]))
+                  paper=PAPER_TABLE2.get(config["scenario"], {}).get(config["algo"]))
     if "deployed" in loops:
         result["deployed"] = dict(control_period=ROBOTS_CONTROL_PERIOD, pooled=summaries["deployed"],
                                   per_seed=per_seed["deployed"])
@@ -159,7 +159,7 @@ def evaluate_policy(folder, episodes: int = 100, seed: int = 0, env_overrides: d
     result = dict(scenario=env.name, algo=policy.spec.get("algo"), policy=str(folder), env=policy.spec.get("env", {}),
                   env_overrides=env_overrides or {}, episodes=episodes, seed=seed,
                   control_period=env.config.control_period, protocol=env.config.protocol, pooled=summarize(values),
-                  paper=PAPER.get(env.name, {}).get(policy.spec.get("algo")))
+                  paper=PAPER_TABLE2.get(env.name, {}).get(policy.spec.get("algo")))
     if per_episode:
         result["episodes_metrics"] = {k: v.tolist() for k, v in values.items()}
     return result
@@ -196,4 +196,4 @@ def markdown_table(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["evaluate_run", "evaluate_policy", "open_policy", "markdown_table", "greedy_episodes", "first_episodes", "PAPER"]
+__all__ = ["evaluate_run", "evaluate_policy", "open_policy", "markdown_table", "greedy_episodes", "first_episodes", "PAPER_TABLE2"]

@@ -27,7 +27,7 @@ import numpy as np
 import optax
 
 from .algorithm import trainer
-from .common import episode_info, float32_tensors, rollout_metrics
+from .common import episode_info, float32_tensors, global_state, rollout_metrics
 from .data_parallel import rows_over
 from .networks import ActorCritic, apply_agents, init_agents, with_agent_ids
 
@@ -115,12 +115,6 @@ class IPPOConfig:
 
 def policy_inputs(cfg: IPPOConfig, obs):
     return with_agent_ids(obs) if cfg.agent_ids and cfg.shared else obs
-
-
-def global_state(obs):
-    """The global state of MARBLER's learners: every agent's observation concatenated,
-    ``[..., N, D] -> [..., N * D]``."""
-    return obs.reshape(obs.shape[:-2] + (obs.shape[-2] * obs.shape[-1],))
 
 
 def critic_inputs(cfg: IPPOConfig, obs):

@@ -2,7 +2,7 @@
 
 The actors are IPPO's (decentralised: each agent acts on its own observation, with an agent-ID
 one-hot when parameters are shared); the critic is trained on the global state, which for MARBLER's
-scenarios is every agent's observation concatenated (``marbler_jax_rl.ippo.global_state``; MARBLER
+scenarios is every agent's observation concatenated (``marbler_jax_rl.common.global_state``; MARBLER
 exposes no other state), plus the agent ID so that individual-reward scenarios (Simple Navigation,
 Warehouse) get per-agent values. Everything else -- GAE, clipped surrogate and value losses,
 minibatch epochs, the jitted chunked training loop -- is :mod:`marbler_jax_rl.ippo`'s, so the two

@@ -63,7 +63,7 @@ from . import buffer as episode_buffer
 from .algorithm import trainer
 from .common import episode_info, float32_tensors, rollout_metrics
 from .data_parallel import split_batch, split_rows, whole_on
-from .ippo import global_state
+from .common import global_state
 from .networks import QAgent, apply_agents, init_agents, with_agent_ids
 from marbler_jax.numpy_policy import CELLS
 from marbler_jax.rollout import StatefulPolicy

@@ -171,7 +171,7 @@ _PAPER_PPO = dict(hidden=128, lr=2e-4, update_epochs=4, clip_eps=0.2, ent_coef=0
 _PAPER_Q_STEPS = 5_000_000
 _MARBLER = dict(env=MARBLER_TRAINING_ENV)
 
-PAPER: Mapping[str, Recipe] = MappingProxyType({
+PAPER_RECIPES: Mapping[str, Recipe] = MappingProxyType({
     "vdn": Recipe("vdn", VDNConfig(**_PAPER_Q, lr=3e-4, target_update_interval=200), default_steps=_PAPER_Q_STEPS,
                   **_MARBLER),
     "qmix": Recipe("qmix", QMIXConfig(**_PAPER_Q, lr=1e-4, tau=0.01, mixer_embed=32, hypernet_hidden=64),
@@ -185,14 +185,14 @@ PAPER: Mapping[str, Recipe] = MappingProxyType({
 
 def recipe(algo: str, name: str = "recipe") -> Recipe:
     """The ``name`` recipe (see :data:`RECIPE_NAMES`) of ``algo``: a built-in's from :data:`RECIPES` /
-    :data:`PAPER`, another algorithm's own (``Algorithm.recipes``), or its config's defaults where it has
+    :data:`PAPER_RECIPES`, another algorithm's own (``Algorithm.recipes``), or its config's defaults where it has
     none by that name or for ``"none"``."""
     from .registry import get
 
     if name not in RECIPE_NAMES:
         raise ValueError(f"unknown preset {name!r}; available: {list(RECIPE_NAMES)}")
     algorithm = get(algo)            # an unknown name: one ValueError naming what is available
-    presets = {"recipe": RECIPES[algo], "paper": PAPER[algo]} if algo in RECIPES else algorithm.recipes
+    presets = {"recipe": RECIPES[algo], "paper": PAPER_RECIPES[algo]} if algo in RECIPES else algorithm.recipes
     if name != "none" and name in presets:
         return presets[name]
     return Recipe(algo, algorithm.config(), env=MappingProxyType({}), default_steps=1_000_000)
@@ -207,5 +207,5 @@ def settings(name: str, scenario: str, algo: str) -> tuple[dict, dict, int]:
     return chosen.settings(scenario)
 
 
-__all__ = ["Recipe", "RECIPES", "PAPER", "RECIPE_NAMES", "TRAINING_ENV", "MARBLER_TRAINING_ENV", "recipe", "settings",
+__all__ = ["Recipe", "RECIPES", "PAPER_RECIPES", "RECIPE_NAMES", "TRAINING_ENV", "MARBLER_TRAINING_ENV", "recipe", "settings",
            "settings_digest"]

@@ -25,8 +25,8 @@ import numpy as np
 
 from .benchmark import (ABSOLUTE, ENV_NAME, JAXROBOTARIUM_SCENARIOS, PAPER_ALGOS, PAPER_SCENARIOS, UNRECORDED_DEVICE,
                         cell_digest, load_results)
-from .driver import atomic_write
-from .evaluate import PAPER
+from .checkpoints import atomic_write
+from .evaluate import PAPER_TABLE2
 from .recipes import RECIPES, settings_digest
 from marbler_jax.scenarios.base import PROTOCOLS, merge_settings
 
@@ -228,7 +228,7 @@ def metric_table(results: dict, metric: str, reps: int) -> str | None:
             iqm, low, high = iqm_ci(scores, reps)
             best = episode_values(runs[best_seed_run(runs)][ABSOLUTE], metric)
             best_mean = float(np.mean(best))
-            paper = PAPER.get(scenario, {}).get(algo, {}).get(metric)
+            paper = PAPER_TABLE2.get(scenario, {}).get(algo, {}).get(metric)
             ok = reached(metric, best_mean, paper[0] if paper else None)
             steps = runs["run_0"][ABSOLUTE]["env_steps"][0]
             mark = cell_mark(scenario, algo, runs)
@@ -256,7 +256,7 @@ def shortfall_table(results: dict) -> str | None:
             best = runs[best_seed_run(runs)][ABSOLUTE]
             missed = []
             for metric, higher in METRICS.items():
-                paper = PAPER.get(scenario, {}).get(algo, {}).get(metric)
+                paper = PAPER_TABLE2.get(scenario, {}).get(algo, {}).get(metric)
                 if metric in best and reached(metric, float(np.mean(best[metric])), paper[0] if paper else None) is False:
                     limit = paper[0] if paper else VIOLATION_LIMIT
                     missed.append(f"{metric} {_fmt(float(np.mean(best[metric])))} {'<' if higher else '>'} {limit:g}")
@@ -317,7 +317,7 @@ def curve_points(runs: dict) -> tuple[np.ndarray, np.ndarray]:
 
 def curve_title(scenario: str) -> str:
     """The curve plot's title: the scenario, and how the paper's reward is drawn where the paper has one."""
-    return f"{scenario} (dotted: the paper's reward, same colour)" if scenario in PAPER else scenario
+    return f"{scenario} (dotted: the paper's reward, same colour)" if scenario in PAPER_TABLE2 else scenario
 
 
 def plot_curves(scenario: str, runs_by_algo: dict, png: Path, reps: int) -> None:
@@ -337,7 +337,7 @@ def plot_curves(scenario: str, runs_by_algo: dict, png: Path, reps: int) -> None
             statistic="iqm_per_point")
         line, = ax.plot(steps, point[algo], lw=1.6, label=f"{algo} ({scores.shape[0]} seeds)")
         ax.fill_between(steps, interval[algo][0], interval[algo][1], color=line.get_color(), alpha=0.2)
-        paper = PAPER.get(scenario, {}).get(algo)
+        paper = PAPER_TABLE2.get(scenario, {}).get(algo)
         if paper:
             ax.axhline(paper["reward"][0], ls=":", lw=1.2, color=line.get_color())
     ax.set_xlabel("env steps per seed")
@@ -378,7 +378,7 @@ def time_table(results: dict) -> str:
             first = next(iter(runs.values()))[ABSOLUTE]
             train = first.get("train_seconds", [0.0])[0]
             wall = first.get("wall_seconds", [None])[0]
-            times.append((algo in PAPER.get(scenario, {}), train, wall))
+            times.append((algo in PAPER_TABLE2.get(scenario, {}), train, wall))
             mark = cell_mark(scenario, algo, runs)
             rows.append(f"| {scenario} | {algo}{mark} | {first['env_steps'][0] / 1e6:.1f}M | "
                         f"{first.get('device', [UNRECORDED_DEVICE])[0]} | {train / 60:.1f} min | "
@@ -416,13 +416,13 @@ def summary_table(results: dict, reps: int = 2000) -> str:
         return _fmt(x).replace("-", "\u2212")
 
     tasks = results.get(ENV_NAME, {})
-    algos = [a for a in ALGO_ORDER if any(a in paper for paper in PAPER.values())]
+    algos = [a for a in ALGO_ORDER if any(a in paper for paper in PAPER_TABLE2.values())]
     lines = ["| reward: ours, best seed (IQM [95 % CI]) / paper | " + " | ".join(a.upper() for a in algos) + " |",
              "|---|" + "---|" * len(algos)]
     for scenario in PAPER_SCENARIOS:
         cells = []
         for algo in algos:
-            paper = PAPER[scenario][algo]["reward"][0]
+            paper = PAPER_TABLE2[scenario][algo]["reward"][0]
             runs = tasks.get(scenario, {}).get(algo)
             if runs is None:
                 cells.append(f"— / {num(paper)}")

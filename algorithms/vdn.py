@@ -2,7 +2,7 @@
 
 ``Q_tot(s, a) = sum_i Q_i(o_i, a_i)``; trained end to end by :mod:`marbler_jax_rl.q_learning` (episode
 replay, recurrent agents, double-Q targets, hard target copies). EPyMARL's VDN settings used by
-MARBLER (``marbler_jax_rl.recipes.PAPER``): GRU 128, lr 3e-4, target copy every 200 gradient steps, gradient
+MARBLER (``marbler_jax_rl.recipes.PAPER_RECIPES``): GRU 128, lr 3e-4, target copy every 200 gradient steps, gradient
 clip 10, gamma 0.99, epsilon 1 -> 0.05 over 50k steps, buffer 5000 episodes, batch 32.
 """
 from __future__ import annotations

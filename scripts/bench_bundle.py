@@ -24,7 +24,7 @@ from tqdm.auto import tqdm
 
 import marbler_jax
 from marbler_jax_rl import ippo, vdn
-from marbler_jax_rl.driver import atomic_write
+from marbler_jax_rl.checkpoints import atomic_write
 from marbler_jax_rl.export import export_params
 from marbler_jax.deploy.bundle import folder_size, write_bundle
 

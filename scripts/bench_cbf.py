@@ -24,7 +24,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from marbler_jax_rl.driver import atomic_write  # noqa: E402
+from marbler_jax_rl.checkpoints import atomic_write  # noqa: E402
 from marbler_jax import cbf, physics  # noqa: E402
 
 

@@ -27,7 +27,7 @@ from tqdm.auto import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import marbler_jax  # noqa: E402
-from marbler_jax_rl.driver import atomic_write  # noqa: E402
+from marbler_jax_rl.checkpoints import atomic_write  # noqa: E402
 from marbler_jax_rl.data_parallel import use_cpu_devices  # noqa: E402
 from marbler_jax.rollout import make_rollout  # noqa: E402
 

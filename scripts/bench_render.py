@@ -21,7 +21,7 @@ import jax
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import marbler_jax  # noqa: E402
-from marbler_jax_rl.driver import atomic_write  # noqa: E402
+from marbler_jax_rl.checkpoints import atomic_write  # noqa: E402
 from marbler_jax.render import record_episodes, render_grid_episode  # noqa: E402
 
 

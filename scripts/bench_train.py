@@ -43,7 +43,8 @@ from tqdm.auto import tqdm
 import marbler_jax
 from marbler_jax_rl.data_parallel import use_cpu_devices
 from marbler_jax_rl import registry
-from marbler_jax_rl.driver import SEED_BATCHING, atomic_write, build_config, default_seed_batching, has_setting
+from marbler_jax_rl.checkpoints import atomic_write
+from marbler_jax_rl.driver import SEED_BATCHING, build_config, default_seed_batching, has_setting
 from marbler_jax.scenarios.base import merge_settings
 from marbler_jax_rl.recipes import settings
 from marbler_jax_rl.cli import parse_overrides

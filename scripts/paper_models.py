@@ -210,7 +210,7 @@ def _cell(values, digits: int = 2) -> str:
 def table_markdown(out: Path) -> str:
     """RESULTS.md's section on the paper's models: reward and task metrics in the four loops."""
     sys.path.insert(0, str(REPO))
-    from marbler_jax_rl.evaluate import PAPER
+    from marbler_jax_rl.evaluate import PAPER_TABLE2
 
     counts = {}                                     # episodes per model in each loop
     for loop in LOOPS:
@@ -247,7 +247,7 @@ def table_markdown(out: Path) -> str:
     agree, disagree = [], []
     for scenario, algo, _, _ in models():
         a, b, d, e = (_episodes(out, loop, scenario, algo) for loop in LOOPS)
-        paper = PAPER.get(scenario, {}).get(algo, {}).get("reward")
+        paper = PAPER_TABLE2.get(scenario, {}).get(algo, {}).get("reward")
         diff, verdict = "—", "—"
         if a is not None and b is not None:
             mean, low, high = difference_ci(a["reward"], b["reward"])
@@ -295,7 +295,7 @@ def table_markdown(out: Path) -> str:
     apart = {"False": [], "True": []}       # models whose two loops' CIs do not overlap, by the closer loop
     for scenario, algo, _, _ in models():
         a, t = (_episodes(out, loop, scenario, algo) for loop in ("marbler-jax", "marbler-robotarium-true"))
-        paper = PAPER.get(scenario, {}).get(algo, {}).get("reward")
+        paper = PAPER_TABLE2.get(scenario, {}).get(algo, {}).get("reward")
         which = "—"
         if a is not None and t is not None and paper:
             gaps = {"False": abs(np.mean(a["reward"]) - paper[0]), "True": abs(np.mean(t["reward"]) - paper[0])}

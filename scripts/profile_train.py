@@ -44,8 +44,8 @@ from marbler_jax.scenarios.base import PROTOCOLS, merge_settings  # noqa: E402
 from marbler_jax_rl import checkpoints  # noqa: E402
 from marbler_jax_rl.data_parallel import use_cpu_devices  # noqa: E402
 from marbler_jax_rl import registry  # noqa: E402
-from marbler_jax_rl.driver import (SEED_BATCHING, atomic_write, build_config,  # noqa: E402
-                                   default_seed_batching, make_tester)
+from marbler_jax_rl.checkpoints import atomic_write  # noqa: E402
+from marbler_jax_rl.driver import SEED_BATCHING, build_config, default_seed_batching, make_tester  # noqa: E402
 from marbler_jax_rl.recipes import settings  # noqa: E402
 
 NEVER = 2**31 - 1          # a learning_starts no run reaches: collection only

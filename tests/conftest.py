@@ -150,11 +150,11 @@ def ippo_simple_nav_run(tmp_path_factory):
     every tick), trained once per session (:func:`build_once`) through the training driver; used by the
     learning test and the Robotarium bundle test."""
     from marbler_jax_rl import recipes
-    from marbler_jax_rl.driver import train
+    from marbler_jax_rl.driver import train_run
 
     def build(folder):
         hp = recipes.settings("recipe", "simple_navigation", "ippo")[1]
-        train("simple_navigation", "ippo", 150_000, 1, folder / "run", hp=hp,
+        train_run("simple_navigation", "ippo", 150_000, 1, folder / "run", hp=hp,
               eval_episodes=256, test_episodes=16, progress=False, log=lambda *a, **k: None)
 
     return build_once(tmp_path_factory, "ippo-sn", build) / "run"

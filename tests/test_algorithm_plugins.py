@@ -17,7 +17,7 @@ import marbler_jax
 from marbler_jax.numpy_policy import NumpyPolicy
 from marbler_jax_rl import registry
 from marbler_jax_rl.driver import build_config
-from marbler_jax_rl.recipes import PAPER, RECIPES, recipe
+from marbler_jax_rl.recipes import PAPER_RECIPES, RECIPES, recipe
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "reinforce"
 REFERENCE = "marbler_reinforce:REINFORCE"
@@ -35,7 +35,7 @@ def test_the_built_ins_are_registered_once_with_everything_the_commands_use():
     for name in registry.names()[:5]:
         algorithm = registry.get(name)
         assert algorithm.name == name and algorithm.summary
-        assert recipe(name) is RECIPES[name] and recipe(name, "paper") is PAPER[name]
+        assert recipe(name) is RECIPES[name] and recipe(name, "paper") is PAPER_RECIPES[name]
     assert [registry.get(a).map_seeds_on_cpu for a in ("vdn", "mappo")] == [True, False]
     with pytest.raises(ValueError, match=r"an algorithm named 'vdn' is already registered"):
         registry.register(registry.Algorithm("vdn", "another", **{k: getattr(registry.get("ippo"), k) for k in (

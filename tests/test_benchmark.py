@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import jax
 import numpy as np
@@ -57,6 +58,33 @@ def test_results_files_merge_and_name_their_cells(tmp_path):
     (tmp_path / "results-p1.json").write_text("{broken")
     with pytest.raises(ValueError, match="results-p1.json is not valid JSON"):
         load_results(tmp_path)
+
+
+@pytest.mark.parametrize("content, entry", [
+    ([1, 2], "results.json holds a JSON list"),
+    ({ENV_NAME: []}, "results.json: marbler is not an object of scenarios"),
+    ({ENV_NAME: {"warehouse": {"vdn": {}}}}, "results.json: marbler/warehouse/vdn is not a non-empty object of runs"),
+    ({ENV_NAME: {"warehouse": {"vdn": {"seed0": {}}}}}, "results.json: marbler/warehouse/vdn has an entry 'seed0'"),
+    ({ENV_NAME: {"warehouse": {"vdn": {"run_0": {"step_0": {}}}}}}, "results.json: marbler/warehouse/vdn/run_0 has no 'absolute_metrics'"),
+    ({ENV_NAME: {"warehouse": {"vdn": {"run_0": {ABSOLUTE: {"reward": "high"}}}}}},
+     "results.json: marbler/warehouse/vdn/run_0 absolute_metrics/reward is not a list of numbers"),
+    ({ENV_NAME: {"warehouse": {"vdn": {"run_0": {ABSOLUTE: {"reward": [1.0]}, "step_0": {"reward": [1.0]}}}}}},
+     "results.json: marbler/warehouse/vdn/run_0 step_0 has no step_count"),
+])
+def test_a_results_file_of_the_wrong_shape_is_one_line_naming_the_file_and_the_entry(tmp_path, capsys, content,
+                                                                                      entry):
+    """Valid JSON of the wrong shape gave AttributeError / IndexError / StopIteration tracebacks in report and
+    benchmark."""
+    from marbler_jax_rl.cli import main as cli
+
+    (tmp_path / "results.json").write_text(json.dumps(content))
+    with pytest.raises(ValueError, match=re.escape(entry)):
+        load_results(tmp_path)
+    for argv in (["report", str(tmp_path), "--no-progress"],
+                 ["benchmark", "--out", str(tmp_path), "--scenarios", "warehouse", "--algos", "vdn", "--dry-run"]):
+        assert cli(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and entry in err[0], err
 
 
 def test_grid_canonicalises_and_shares_cells_between_processes():

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from marbler_jax_rl import checkpoints
-from marbler_jax_rl.driver import load_params, train
+from marbler_jax_rl.driver import train_run
+from marbler_jax_rl.run import load_params
 from marbler_jax_rl.run import Run
 
 from tests.test_training_driver import TWO_SEEDS
@@ -23,7 +24,7 @@ RUN = {k: v for k, v in TWO_SEEDS.items() if k != "log"}
 def full(tmp_path_factory):
     """An uninterrupted 4-update run (a checkpoint after every update)."""
     out = tmp_path_factory.mktemp("full") / "run"
-    train(out=out, log=lambda *a: None, **RUN)
+    train_run(out=out, log=lambda *a: None, **RUN)
     return out
 
 
@@ -88,7 +89,7 @@ def test_a_damaged_latest_checkpoint_is_skipped_and_the_run_ends_as_if_uninterru
 
                 shutil.rmtree(item)
     said = []
-    train(out=out, resume=True, log=said.append, **RUN)
+    train_run(out=out, resume=True, log=said.append, **RUN)
     warnings = [line for line in said if line.startswith("warning:")]
     assert len(warnings) == 1 and f"{latest}" in warnings[0], said
     assert "resuming from update 2 of 4" in said
@@ -102,9 +103,41 @@ def test_a_checkpoint_interrupted_before_its_manifest_is_not_trusted(tmp_path, f
     out = cut_run(tmp_path, full, stop_at=3)
     (out / "checkpoints" / "3" / checkpoints.MANIFEST).unlink()
     said = []
-    train(out=out, resume=True, log=said.append, **RUN)
+    train_run(out=out, resume=True, log=said.append, **RUN)
     assert any("has no manifest" in line for line in said) and "resuming from update 2 of 4" in said
     assert_same_params(out, full)
+
+
+def test_every_manifest_is_required_in_a_folder_that_writes_them(tmp_path, full):
+    """With every manifest of checkpoints/ deleted and a byte flipped, a resume restored the flipped bytes
+    without a word; a best/ step without its manifest was never checked, so export shipped it. A folder
+    written with manifests (config.json says so) treats a step without one as damaged."""
+    import shutil
+
+    out = cut_run(tmp_path, full, stop_at=2)
+    for step in (out / "checkpoints").iterdir():
+        (step / checkpoints.MANIFEST).unlink()
+    flip_bytes(largest_file(out / "checkpoints" / "2"))
+    said = []
+    with pytest.raises(ValueError, match="no intact checkpoint left"):
+        train_run(out=out, resume=True, log=said.append, **RUN)
+    assert sum("has no manifest" in line for line in said) == 2
+    run = tmp_path / "best-run"
+    shutil.copytree(full, run)
+    best = next((run / "best").iterdir())
+    (best / checkpoints.MANIFEST).unlink()
+    flip_bytes(largest_file(best))
+    with pytest.raises(ValueError, match=f"the best checkpoint {best} is damaged: it has no manifest"):
+        Run.open(run).params("best")
+    # a folder from before manifests (its config.json does not say it writes them) is trusted on orbax's restore
+    old = cut_run(tmp_path / "old", full, stop_at=2)
+    config = json.loads((old / "config.json").read_text())
+    del config["manifests"]
+    (old / "config.json").write_text(json.dumps(config))
+    for step in (*(old / "checkpoints").iterdir(), *(old / "best").iterdir()):
+        (step / checkpoints.MANIFEST).unlink()
+    train_run(out=old, resume=True, log=lambda *a: None, **RUN)
+    assert_same_params(old, full)
 
 
 def test_no_intact_checkpoint_is_one_clear_error(tmp_path, full):
@@ -112,7 +145,7 @@ def test_no_intact_checkpoint_is_one_clear_error(tmp_path, full):
     for step in (out / "checkpoints").iterdir():
         flip_bytes(largest_file(step))
     with pytest.raises(ValueError, match=f"no intact checkpoint left in {out / 'checkpoints'}"):
-        train(out=out, resume=True, log=lambda *a: None, **RUN)
+        train_run(out=out, resume=True, log=lambda *a: None, **RUN)
 
 
 def test_damaged_final_parameters_and_best_checkpoint_are_refused_by_name(tmp_path, full):
@@ -147,7 +180,7 @@ def test_a_run_saved_with_marblers_key_names_opens_and_resumes(tmp_path, full):
     (out / "config.json").write_text(json.dumps(config))
     run = Run.open(out)
     assert run.env().config.y_min == -0.9 and run.env().config.robot_band_right == -0.5
-    train(out=out, resume=True, log=lambda *a: None, **RUN)        # finished already: nothing to redo
+    train_run(out=out, resume=True, log=lambda *a: None, **RUN)        # finished already: nothing to redo
     assert_same_params(out, full)
     assert json.loads((out / "evaluation.json").read_text())["env_steps_per_s"] == 0   # none trained now
     assert "y_min" in json.loads((out / "config.json").read_text())["env"]

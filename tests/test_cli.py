@@ -45,6 +45,29 @@ def test_bad_input_is_reported(capsys):
     assert parse_overrides(["a=1", "b=true", "c=safe"]) == {"a": 1, "b": True, "c": "safe"}
 
 
+def test_an_os_error_is_one_line_naming_the_path_and_debug_shows_the_traceback(tmp_path, capsys, monkeypatch):
+    """``--out`` under a file gave a NotADirectoryError traceback, a full disk an OSError traceback."""
+    import errno
+
+    import marbler_jax_rl.run_writer as run_writer
+
+    (tmp_path / "notes").write_text("a file")
+    argv = ["train", "--total-steps", "64", "--hp", "num_envs=8", "--hp", "num_steps=8", "--no-progress"]
+    assert main([*argv, "--out", str(tmp_path / "notes" / "run")]) == 1
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"marbler-jax: error: Not a directory: {tmp_path / 'notes' / 'run'}"]
+
+    def disk_full(path, data):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(run_writer, "atomic_write", disk_full)
+    assert main([*argv, "--out", str(tmp_path / "full")]) == 1
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"marbler-jax: error: No space left on device: {tmp_path / 'full' / 'config.json'}"]
+    with pytest.raises(OSError, match="No space left"):
+        main(["--debug", *argv, "--out", str(tmp_path / "full2")])
+
+
 @pytest.mark.parametrize("argv, message", [
     (["train", "--seeds", "x"], "marbler-jax train: error: argument --seeds: invalid int value: 'x'"),
     (["trian"], "marbler-jax: error: argument command: invalid choice: 'trian'"),
@@ -308,7 +331,7 @@ def test_quickstart_replaces_only_its_own_earlier_run(monkeypatch, tmp_path, cap
 
     from marbler_jax_rl.recipes import settings
 
-    real, asked = driver.train, []
+    real, asked = driver.train_run, []
 
     def tiny(scenario, algo, total_steps, seeds, out, env_overrides, hp):     # the quickstart's job at a test's size
         asked.append((scenario, algo, env_overrides, hp, total_steps))
@@ -316,7 +339,7 @@ def test_quickstart_replaces_only_its_own_earlier_run(monkeypatch, tmp_path, cap
                     hp=dict(hp, num_envs=8, num_steps=8, hidden=16), eval_episodes=8, test_episodes=4,
                     progress=False, log=lambda *a, **k: None)
 
-    monkeypatch.setattr(driver, "train", tiny)
+    monkeypatch.setattr(driver, "train_run", tiny)
     monkeypatch.setattr(cli_module, "_episode_gif", lambda run, gif: gif.write_bytes(b"GIF89a"))
     out = tmp_path / "qs"
     (tmp_path / "qs.new").mkdir()                       # a user's folder of that name is left alone

@@ -49,7 +49,7 @@ MATCH_ONE_DEVICE = PRELUDE + textwrap.dedent("""
 """)
 
 RESUME = PRELUDE + textwrap.dedent("""
-    from marbler_jax_rl.driver import train
+    from marbler_jax_rl.driver import train_run
     from tests.helpers import compile_marks, interrupt_at
 
     # interrupted + resumed == uninterrupted, bit for bit, with two seeds and two devices; with persistent envs
@@ -61,11 +61,11 @@ RESUME = PRELUDE + textwrap.dedent("""
               target_update_interval=3, learner_devices=2, persistent_envs=True)
     common = dict(scenario="predator_capture_prey", algo="vdn", total_steps=4 * 4 * 8, seeds=2, hp=hp,
                   eval_episodes=0, checkpoint_every=1, progress=False, test_episodes=2)
-    marks = compile_marks(train, out=root + "/full", **common)
+    marks = compile_marks(train_run, out=root + "/full", **common)
     assert len(marks) == 5 and marks[0] > 0 and marks[-1] == marks[0], f"compilations inside the loop: {marks}"
     with pytest.raises(KeyboardInterrupt):
-        train(out=root + "/cut", on_chunk=interrupt_at(2), log=lambda *a: None, **common)
-    marks = compile_marks(train, out=root + "/cut", resume=True, **common)
+        train_run(out=root + "/cut", on_chunk=interrupt_at(2), log=lambda *a: None, **common)
+    marks = compile_marks(train_run, out=root + "/cut", resume=True, **common)
     assert len(marks) == 3 and marks[-1] == marks[0], f"compilations inside the resumed loop: {marks}"
     full, cut = np.load(root + "/full/params.npz"), np.load(root + "/cut/params.npz")
     assert sorted(full) == sorted(cut) and any("gru" in name for name in full)
@@ -77,7 +77,7 @@ RESUME = PRELUDE + textwrap.dedent("""
 SEEDS_OVER_DEVICES = PRELUDE + textwrap.dedent("""
     import json
 
-    from marbler_jax_rl.driver import train
+    from marbler_jax_rl.driver import train_run
     from tests.helpers import compile_marks, interrupt_at
 
     # Three IPPO seeds on two devices train as vmapped on one device up to float rounding, greedy tests
@@ -93,11 +93,11 @@ SEEDS_OVER_DEVICES = PRELUDE + textwrap.dedent("""
     quiet = lambda *a: None
 
     def chunks(**kw):
-        marks = compile_marks(train, **kw)
+        marks = compile_marks(train_run, **kw)
         assert marks[0] > 0 and marks[-1] == marks[0], f"compilations inside the loop: {marks}"
         return len(marks) - 1
 
-    train(out=root + "/vmap", hp=hp, log=quiet, **common)
+    train_run(out=root + "/vmap", hp=hp, log=quiet, **common)
     vmap = np.load(f"{root}/vmap/params.npz")
     vmap_tests = [json.loads(line) for line in open(f"{root}/vmap/tests.jsonl")]
     every = {"seeds": dict(seed_batching="devices", hp=hp), "envs": dict(hp=dict(hp, learner_devices=2))}
@@ -106,7 +106,7 @@ SEEDS_OVER_DEVICES = PRELUDE + textwrap.dedent("""
         assert chunks(out=f"{root}/{name}", **split, **common) == 3
         full = np.load(f"{root}/{name}/params.npz")
         with pytest.raises(KeyboardInterrupt):
-            train(out=f"{root}/{name}-cut", on_chunk=interrupt_at(2), log=quiet, **split, **common)
+            train_run(out=f"{root}/{name}-cut", on_chunk=interrupt_at(2), log=quiet, **split, **common)
         assert chunks(out=f"{root}/{name}-cut", resume=True, **split, **common) == 2
         cut = np.load(f"{root}/{name}-cut/params.npz")
         assert sorted(cut) == sorted(full)
@@ -133,10 +133,10 @@ def test_seeds_over_devices_match_one_device_and_resume_bit_exactly(tmp_path):
 
 
 def test_seeds_over_devices_with_a_split_learner_is_refused(tmp_path):
-    from marbler_jax_rl.driver import train
+    from marbler_jax_rl.driver import train_run
 
     with pytest.raises(ValueError, match=r"seed_batching='devices' splits the seeds .* \(learner_devices=2\)"):
-        train("simple_navigation", "vdn", 64, 2, tmp_path / "run", hp=dict(learner_devices=2, batch_size=8),
+        train_run("simple_navigation", "vdn", 64, 2, tmp_path / "run", hp=dict(learner_devices=2, batch_size=8),
               seed_batching="devices", progress=False)
     assert not (tmp_path / "run").exists()
 

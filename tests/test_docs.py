@@ -166,6 +166,24 @@ def test_commands_quoted_in_the_prose_name_real_commands_options_and_extras():
     assert seen > 40
 
 
+OUTPUT_FLAGS = ("--out", "--bundle", "--gif", "--plot", "--json")
+OUTPUT_HOMES = ("runs/", "results/", "docs/media/", "bench_out/")   # ignored by git, or what the repo keeps
+
+
+def test_documented_commands_write_only_where_git_ignores_it_or_the_repository_keeps_it():
+    """A reader who copies a command into the repository root must not litter it (``--gif pcp.gif``)."""
+    outputs = []
+    for page in pages():
+        quoted = [(where, text.split()) for where, text in inline_commands(page)]
+        fenced = [(c.where, list(c.argv)) for c in page_items(page) if isinstance(c, Command)]
+        for where, tokens in quoted + fenced:
+            outputs += [(where, value) for flag, value in zip(tokens, tokens[1:]) if flag in OUTPUT_FLAGS]
+    assert len(outputs) > 20
+    stray = [(w, v) for w, v in outputs
+             if not v.startswith(OUTPUT_HOMES) and not v.replace("_", "").isupper() and v != "..."]
+    assert not stray, stray
+
+
 # ---- slow: every page, commands and snippets, in a workspace of its own --------------------------------------
 
 CHEAP = {   # subcommand -> options set to a cheap value (the docs' own values are what the default test parses)

@@ -13,9 +13,9 @@ import pytest
 import marbler_jax
 from tests.helpers import compile_marks, interrupt_at, tensorboard_steps
 from marbler_jax_rl import registry
-from marbler_jax_rl.driver import (SEED_BATCHING, build_config, default_seed_batching, keep_improved,
-                                  load_params, make_tester, seed_best_scores, train)
-from marbler_jax_rl.run import Run, load_run
+from marbler_jax_rl.driver import SEED_BATCHING, build_config, default_seed_batching, make_tester, train_run
+from marbler_jax_rl.run import Run, load_params, load_run, seed_best_scores
+from marbler_jax_rl.run_writer import keep_improved
 from marbler_jax_rl.ippo import IPPOConfig, make_train
 
 HP = dict(num_envs=8, num_steps=8, num_minibatches=2, update_epochs=1, hidden=16)
@@ -38,21 +38,21 @@ def test_chunked_run_matches_one_shot():
 def test_interrupted_run_resumes_bit_exactly(tmp_path):
     common = dict(scenario="warehouse", algo="ippo", total_steps=STEPS, seeds=2, hp=HP, eval_episodes=0,
                   checkpoint_every=1, progress=False, log=lambda *a: None, test_episodes=16)
-    train(out=tmp_path / "full", **common)
+    train_run(out=tmp_path / "full", **common)
 
     with pytest.raises(KeyboardInterrupt):
-        train(out=tmp_path / "cut", on_chunk=interrupt_at(2), **common)
-    with pytest.raises(ValueError, match="already holds checkpoints; pass --resume"):
-        train(out=tmp_path / "cut", **common)
+        train_run(out=tmp_path / "cut", on_chunk=interrupt_at(2), **common)
+    with pytest.raises(ValueError, match=r"already holds a run \(.*config.json.*\); pass --resume"):
+        train_run(out=tmp_path / "cut", **common)
     with pytest.raises(ValueError, match=r"settings differ from the saved run in \['seeds'\]"):
-        train(out=tmp_path / "cut", resume=True, **dict(common, seeds=3))
+        train_run(out=tmp_path / "cut", resume=True, **dict(common, seeds=3))
     # a run saved before an env setting existed resumes when that setting is at its default, not otherwise
     saved = json.loads((tmp_path / "cut" / "config.json").read_text())
     del saved["env"]["cbf_safety_radius"]
     (tmp_path / "cut" / "config.json").write_text(json.dumps(saved))
     with pytest.raises(ValueError, match=r"settings differ from the saved run in \['env'\]"):
-        train(out=tmp_path / "cut", resume=True, **dict(common, env_overrides={"cbf_safety_radius": 0.3}))
-    train(out=tmp_path / "cut", resume=True, **common)
+        train_run(out=tmp_path / "cut", resume=True, **dict(common, env_overrides={"cbf_safety_radius": 0.3}))
+    train_run(out=tmp_path / "cut", resume=True, **common)
 
     full, cut = np.load(tmp_path / "full" / "params.npz"), np.load(tmp_path / "cut" / "params.npz")
     assert sorted(full) == sorted(cut)
@@ -87,8 +87,31 @@ def test_interrupted_run_resumes_bit_exactly(tmp_path):
     assert env.name == "warehouse" and policy(None, np.zeros((env.num_agents, env.obs_dim), np.float32)).shape == (env.num_agents,)
 
 
+def test_a_fresh_run_never_writes_into_a_folder_that_holds_files(tmp_path):
+    """Another run's folder without its checkpoints, or a folder of a user's files: a fresh run is refused
+    before anything is written (it overwrote the other run's config.json, leaving a folder that said IPPO
+    with VDN's parameters)."""
+    other = tmp_path / "vdn-run"
+    other.mkdir()
+    (other / "config.json").write_text('{"algo": "vdn"}')
+    (other / "params.npz").write_bytes(b"vdn's")
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    common = dict(scenario="simple_navigation", algo="ippo", total_steps=STEPS, seeds=1, hp=HP, progress=False,
+                  log=lambda *a: None)
+    with pytest.raises(ValueError, match=r"vdn-run already holds a run \(config.json, params.npz\); pass --resume"):
+        train_run(out=other, **common)
+    with pytest.raises(ValueError, match=r"mine already holds files \(notes.txt\)"):
+        train_run(out=mine, **common)
+    assert sorted(p.name for p in other.iterdir()) == ["config.json", "params.npz"]
+    assert (other / "config.json").read_text() == '{"algo": "vdn"}' and sorted(mine.iterdir()) == [mine / "notes.txt"]
+    with pytest.raises(ValueError, match="the settings differ from the saved run"):
+        train_run(out=other, resume=True, **common)
+
+
 def test_changed_settings_name_what_differs_and_ignore_the_learners_device_count(tmp_path):
-    from marbler_jax_rl.driver import build_config, changed_settings, run_config
+    from marbler_jax_rl.run_writer import changed_settings, run_config
 
     env = marbler_jax.make("predator_capture_prey", control_period=15)
     config = run_config("predator_capture_prey", "vdn", 2, 0, env, build_config("vdn", dict(learner_devices=2)), 64)
@@ -125,7 +148,7 @@ def test_vmapped_seeds_match_mapped_seeds(tmp_path, algo):
     first = jax.tree_util.tree_leaves(out["vmap"])[0]
     assert first.shape[0] == 2 and not np.allclose(first[0], first[1])
     with pytest.raises(ValueError, match=r"seed_batching must be one of \['vmap', 'map', 'devices'\], got 'pmap'"):
-        train("simple_navigation", algo, STEPS, 2, tmp_path / "bad", hp=HP if algo == "ippo" else {},
+        train_run("simple_navigation", algo, STEPS, 2, tmp_path / "bad", hp=HP if algo == "ippo" else {},
               seed_batching="pmap", progress=False)
 
 
@@ -141,8 +164,8 @@ def test_greedy_tests_do_not_change_training(tmp_path):
     and without it; it reports the mean return of each seed's greedy episodes; bad counts are refused."""
     common = dict(scenario="simple_navigation", algo="ippo", total_steps=STEPS, seeds=2, hp=HP,
                   checkpoint_every=2, progress=False, log=lambda *a: None)
-    train(out=tmp_path / "test", test_episodes=8, eval_episodes=8, **common)
-    train(out=tmp_path / "none", test_episodes=0, eval_episodes=0, **common)
+    train_run(out=tmp_path / "test", test_episodes=8, eval_episodes=8, **common)
+    train_run(out=tmp_path / "none", test_episodes=0, eval_episodes=0, **common)
     evaluations = [json.loads((tmp_path / run / "evaluation.json").read_text()) for run in ("test", "none")]
     assert evaluations[0]["trained"]["episodes"] >= 8 and evaluations[1]["trained"] is None   # 0: no evaluation
     with_test, without = np.load(tmp_path / "test" / "params.npz"), np.load(tmp_path / "none" / "params.npz")
@@ -182,9 +205,9 @@ def test_greedy_tests_do_not_change_training(tmp_path):
     assert done.any(0).all()
     assert per_seed[0] == pytest.approx(returns[first, np.arange(8)].mean(), rel=1e-5)
     with pytest.raises(ValueError, match="test_episodes must be >= 0"):
-        train(out=tmp_path / "bad", test_episodes=-1, **common)
+        train_run(out=tmp_path / "bad", test_episodes=-1, **common)
     with pytest.raises(ValueError, match="eval_episodes must be >= 0"):
-        train(out=tmp_path / "bad", eval_episodes=-1, **common)
+        train_run(out=tmp_path / "bad", eval_episodes=-1, **common)
 
 
 def test_seed_best_scores_read_per_seed_scores_and_older_lines():
@@ -214,7 +237,7 @@ def test_best_checkpoint_keeps_each_seeds_best_and_evaluate_can_pick_the_best_se
     from marbler_jax_rl.evaluate import evaluate_run, markdown_table
 
     run = tmp_path / "run"
-    train(out=run, **TWO_SEEDS)
+    train_run(out=run, **TWO_SEEDS)
     rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
     per_seed = np.array([r["test_returns"] for r in rows])                  # [4 chunks, 2 seeds]
     best_chunk = per_seed.argmax(axis=0)
@@ -247,7 +270,7 @@ def test_a_kill_before_the_checkpoint_commits_repeats_the_chunk(tmp_path, monkey
     """The runner checkpoint is written last in a chunk: killed after the metrics and ``best/`` were
     written but before it, a resumed run repeats that chunk and ends with the same parameters,
     metrics lines and best checkpoint as an uninterrupted one."""
-    train(out=tmp_path / "full", **TWO_SEEDS)
+    train_run(out=tmp_path / "full", **TWO_SEEDS)
     save = ocp.CheckpointManager.save
     killed = []
 
@@ -259,10 +282,10 @@ def test_a_kill_before_the_checkpoint_commits_repeats_the_chunk(tmp_path, monkey
 
     monkeypatch.setattr(ocp.CheckpointManager, "save", save_or_die)
     with pytest.raises(KeyboardInterrupt):
-        train(out=tmp_path / "cut", **TWO_SEEDS)
+        train_run(out=tmp_path / "cut", **TWO_SEEDS)
     assert ocp.CheckpointManager(tmp_path / "cut" / "checkpoints").latest_step() == 1
     assert (tmp_path / "cut" / "metrics.jsonl").read_text().count("\n") == 2       # chunk 2 written, not committed
-    train(out=tmp_path / "cut", resume=True, **TWO_SEEDS)
+    train_run(out=tmp_path / "cut", resume=True, **TWO_SEEDS)
 
     def lines(run):   # without the timings
         return [{k: v for k, v in json.loads(line).items() if k != "sps"}
@@ -285,7 +308,7 @@ def test_evaluate_reports_the_training_loop_and_the_robots_loop_side_by_side(tmp
     from marbler_jax_rl.evaluate import evaluate_run, greedy_episodes, markdown_table, summarize
 
     run = tmp_path / "run"
-    train(out=run, **dict(TWO_SEEDS, seeds=1, checkpoint_every=None, env_overrides={"control_period": 15}))
+    train_run(out=run, **dict(TWO_SEEDS, seeds=1, checkpoint_every=None, env_overrides={"control_period": 15}))
     result = evaluate_run(run, episodes=8)
     assert result["control_period"] == 15 and result["deployed"]["control_period"] == 1
     # the deployed column is the same policy and start states in the every-tick env
@@ -303,15 +326,15 @@ def test_every_training_program_is_compiled_before_the_first_chunk(tmp_path, mon
     so the progress bar's rate, ETA and sps measure the steady state: no compilation happens between the
     "compiled in" line and the last chunk. The learning curve is drawn after the first and the last chunk
     (and between them at most every ``PLOT_EVERY_S``), the last time from every update."""
-    import marbler_jax_rl.driver as driver
+    import marbler_jax_rl.run_writer as run_writer
 
     drawn = []
-    monkeypatch.setattr(driver, "PLOT_EVERY_S", 1e9)
-    monkeypatch.setattr(driver, "plot_learning_curve",
+    monkeypatch.setattr(run_writer, "PLOT_EVERY_S", 1e9)
+    monkeypatch.setattr(run_writer, "plot_learning_curve",
                         lambda metrics, png, title: drawn.append(len(metrics.read_text().splitlines())))
     # 5 updates in chunks of 2: programs of 2 and 1 updates
     settings = {k: v for k, v in TWO_SEEDS.items() if k != "log"}         # compile_marks reads the log
-    marks = compile_marks(train, out=tmp_path / "run", **dict(settings, total_steps=5 * 8 * 8, checkpoint_every=2))
+    marks = compile_marks(train_run, out=tmp_path / "run", **dict(settings, total_steps=5 * 8 * 8, checkpoint_every=2))
     assert len(marks) == 4 and marks[0] > 0, marks      # compiled; then 3 chunks: 2, 2, 1 updates
     assert marks[-1] == marks[0], f"compilations inside the training loop: {marks}"
     assert drawn == [2, 5]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from marbler_jax_rl.driver import build_config, train
+from marbler_jax_rl.driver import build_config, train_run
 from marbler_jax_rl.cli import main
 
 
@@ -46,7 +46,7 @@ def test_cli_rejects_bad_input_with_exit_2_and_creates_nothing(tmp_path, capsys)
 
 def test_driver_checks_checkpoint_every(tmp_path):
     with pytest.raises(ValueError, match="checkpoint_every must be an integer >= 1"):
-        train("simple_navigation", "ippo", 1000, 1, tmp_path / "x", checkpoint_every=0, progress=False)
+        train_run("simple_navigation", "ippo", 1000, 1, tmp_path / "x", checkpoint_every=0, progress=False)
     assert not (tmp_path / "x").exists()
 
 

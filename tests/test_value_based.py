@@ -10,7 +10,7 @@ import pytest
 import marbler_jax
 from marbler_jax_rl import buffer as episode_buffer
 from marbler_jax_rl import qmix, vdn
-from marbler_jax_rl.recipes import PAPER, RECIPES
+from marbler_jax_rl.recipes import PAPER_RECIPES, RECIPES
 from marbler_jax.rollout import episode_stats, make_rollout
 from tests.helpers import initial_params
 
@@ -43,7 +43,7 @@ def test_qmix_mixer_starts_with_a_moderate_gain_on_the_agents_q_values():
     """With flax's default (lecun_normal) kernels the two hypernetwork layers make Q_tot ~270x as
     sensitive to the agents' Q-values on PCP states, and QMIX's TD loss diverged (~1e3-1e4) where VDN's
     stays ~1; PyTorch's nn.Linear init (EPyMARL's) gives ~35x."""
-    from marbler_jax_rl.ippo import global_state
+    from marbler_jax_rl.common import global_state
 
     env = marbler_jax.make("predator_capture_prey")
     obs, _ = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), 256))
@@ -152,7 +152,7 @@ def test_targets_are_computed_once_per_update_only_where_that_is_exact_and_cheap
                    dict(cache_targets=False)):
         assert not vdn.VDNConfig(**dict(per_update, **change)).targets_per_update, change
     assert RECIPES["qmix_ns"].config.targets_per_update
-    assert not PAPER["vdn"].config.targets_per_update
+    assert not PAPER_RECIPES["vdn"].config.targets_per_update
 
 
 def test_eps_spread_gives_each_env_its_own_exploration_rate():
