@@ -1,8 +1,10 @@
-"""The five built-in algorithms as :class:`~marbler_jax_rl.algorithm.Algorithm` records (their recipes are
-:data:`marbler_jax_rl.recipes.RECIPES` and ``PAPER_RECIPES``; :mod:`marbler_jax_rl.registry` registers them)."""
+"""The built-in algorithms as :class:`~marbler_jax_rl.algorithm.Algorithm` records (their recipes are
+:data:`marbler_jax_rl.recipes.RECIPES`, the paper's five also ``PAPER_RECIPES``; :mod:`marbler_jax_rl.registry`
+registers them)."""
 from __future__ import annotations
 
 from . import ippo, mappo, q_learning, qmix, vdn
+from .pqn import PQN
 from .algorithm import Algorithm
 
 _PPO = dict(make_train=ippo.make_train, greedy_policy=ippo.greedy_policy, policy_tensors=ippo.policy_tensors)
@@ -19,6 +21,7 @@ BUILTIN = (
               config=mappo.MAPPOConfig, **_PPO),
     Algorithm("ippo", "independent PPO: a shared actor-critic, the critic on each robot's own observation",
               config=ippo.IPPOConfig, **_PPO),
+    PQN,
 )
 
 __all__ = ["BUILTIN"]

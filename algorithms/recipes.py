@@ -41,6 +41,7 @@ from marbler_jax.control_loop import ROBOTS_CONTROL_PERIOD
 
 from .ippo import IPPOConfig
 from .mappo import MAPPOConfig
+from .pqn import PQNConfig
 from .qmix import QMIXConfig, QMIXNSConfig
 from .vdn import VDNConfig
 
@@ -163,6 +164,8 @@ RECIPES: Mapping[str, Recipe] = MappingProxyType({
                       scenario_hp=_VALUE_HP, why=_VALUE_WHY),
     "mappo": Recipe("mappo", MAPPOConfig(**_PPO), steps=_PPO_STEPS, default_steps=_PPO_DEFAULT_STEPS),
     "ippo": Recipe("ippo", IPPOConfig(**_PPO), steps=_PPO_STEPS, default_steps=_PPO_DEFAULT_STEPS),
+    # PQN (not in the paper) at its own defaults, for the value-based budgets
+    "pqn": Recipe("pqn", PQNConfig(), steps=_VALUE_STEPS, default_steps=_VALUE_DEFAULT_STEPS),
 })
 
 _PAPER_Q = dict(hidden=128, max_grad_norm=10.0, gamma=0.99, buffer_size=5000, batch_size=32, num_envs=8,
@@ -185,14 +188,15 @@ PAPER_RECIPES: Mapping[str, Recipe] = MappingProxyType({
 
 def recipe(algo: str, name: str = "recipe") -> Recipe:
     """The ``name`` recipe (see :data:`RECIPE_NAMES`) of ``algo``: a built-in's from :data:`RECIPES` /
-    :data:`PAPER_RECIPES`, another algorithm's own (``Algorithm.recipes``), or its config's defaults where it has
+    :data:`PAPER_RECIPES` (the paper's five algorithms), another algorithm's own (``Algorithm.recipes``), or its config's defaults where it has
     none by that name or for ``"none"``."""
     from .registry import get
 
     if name not in RECIPE_NAMES:
         raise ValueError(f"unknown preset {name!r}; available: {list(RECIPE_NAMES)}")
     algorithm = get(algo)            # an unknown name: one ValueError naming what is available
-    presets = {"recipe": RECIPES[algo], "paper": PAPER_RECIPES[algo]} if algo in RECIPES else algorithm.recipes
+    presets = ({"recipe": RECIPES[algo], **({"paper": PAPER_RECIPES[algo]} if algo in PAPER_RECIPES else {})}
+               if algo in RECIPES else algorithm.recipes)
     if name != "none" and name in presets:
         return presets[name]
     return Recipe(algo, algorithm.config(), env=MappingProxyType({}), default_steps=1_000_000)
