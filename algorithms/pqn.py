@@ -21,6 +21,7 @@ import optax
 from .algorithm import Algorithm, trainer
 from .common import episode_info, float32_tensors, rollout_metrics
 from .networks import QAgent, with_agent_ids
+from .q_learning import lambda_returns
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,19 +87,6 @@ def q_values(network: QAgent, params, obs):
     """Q-values ``[..., N, A]`` of observations ``obs [..., N, D]`` (shared network, agent IDs in)."""
     inputs = with_agent_ids(obs)
     return network.apply(params, inputs, jnp.zeros(inputs.shape[:-1] + (1,), bool), method=QAgent.sequence)
-
-
-def lambda_returns(reward, done, next_value, gamma: float, lam: float):
-    """``G_t = r_t + gamma (1 - done_t) ((1 - lam) V_{t+1} + lam G_{t+1})`` along time ``[T, E]``, the last step
-    bootstrapped on ``next_value[-1]``; a ``done`` cuts both terms (the env has reset after it)."""
-    live = gamma * (1.0 - done.astype(jnp.float32))
-
-    def back(g_next, inputs):
-        r, live_t, v_next = inputs
-        g = r + live_t * ((1.0 - lam) * v_next + lam * g_next)
-        return g, g
-
-    return jax.lax.scan(back, next_value[-1], (reward, live, next_value), reverse=True)[1]
 
 
 def make_train(env, cfg: PQNConfig):
@@ -202,4 +190,4 @@ PQN = Algorithm(
     "or target network", config=PQNConfig, make_train=make_train, greedy_policy=greedy_policy,
     policy_tensors=policy_tensors)
 
-__all__ = ["PQN", "PQNConfig", "make_train", "greedy_policy", "policy_tensors", "lambda_returns"]
+__all__ = ["PQN", "PQNConfig", "make_train", "greedy_policy", "policy_tensors"]

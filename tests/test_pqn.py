@@ -1,4 +1,5 @@
-"""PQN (VDN form): its targets, its export, a run through the driver, and (``slow``) that it learns."""
+"""PQN (VDN form): its settings, its export, a run through the driver, and (``slow``) that it learns (its
+TD(lambda) targets are ``q_learning.lambda_returns``, tested in test_value_based)."""
 from __future__ import annotations
 
 import json
@@ -11,23 +12,10 @@ import marbler_jax
 from marbler_jax_rl import registry
 from marbler_jax_rl.driver import train_run
 from marbler_jax_rl.export import export_params
-from marbler_jax_rl.pqn import PQNConfig, greedy_policy, lambda_returns
+from marbler_jax_rl.pqn import PQNConfig, greedy_policy
 from marbler_jax.numpy_policy import load_policy
 
 TINY = dict(num_envs=8, num_steps=8, num_minibatches=2, hidden=16, eps_decay_steps=256)
-
-
-def test_lambda_returns_match_the_recursion_and_stop_at_episode_ends():
-    reward = jnp.array([[1.0], [2.0], [3.0]])
-    done = jnp.array([[False], [True], [False]])
-    next_value = jnp.array([[10.0], [20.0], [30.0]])
-    gamma, lam = 0.9, 0.5
-    g2 = 3.0 + gamma * 30.0                                       # the last step bootstraps on its next value
-    g1 = 2.0                                                      # the episode ended: no bootstrap, no return
-    g0 = 1.0 + gamma * ((1 - lam) * 10.0 + lam * g1)
-    np.testing.assert_allclose(lambda_returns(reward, done, next_value, gamma, lam)[:, 0], [g0, g1, g2], rtol=1e-6)
-    one_step = lambda_returns(reward, done, next_value, gamma, 0.0)[:, 0]
-    np.testing.assert_allclose(one_step, [1.0 + gamma * 10.0, 2.0, 3.0 + gamma * 30.0], rtol=1e-6)
 
 
 @pytest.mark.parametrize("bad, message", [
