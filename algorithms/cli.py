@@ -859,6 +859,19 @@ def main(argv=None) -> int:
         return 130
 
 
+def console() -> None:
+    """The ``marbler-jax`` program: :func:`main`, ending the process. After Ctrl-C it ends without the
+    interpreter's teardown, which can crash in XLA's runtime while a compilation it interrupted is unwinding
+    (the run's files are complete by then: the last chunk's checkpoint is committed and the lock goes with
+    the process)."""
+    code = main()
+    if code == 130:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
+
+
 def _resume_hint(args) -> str:
     """How to continue an interrupted command (every finished chunk and cell is saved)."""
     if args.command == "train":
