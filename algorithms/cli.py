@@ -366,7 +366,7 @@ def _report(args) -> int:
     from .report import write_report
 
     written = write_report(args.results, args.out, reps=args.reps, results_md=args.results_md, readme=args.readme,
-                           progress=not args.no_progress)
+                           progress=not args.no_progress, paper_models=args.paper_models)
     print("\n".join(f"written: {p}" for p in written))
     return 0
 
@@ -815,6 +815,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="also write the report as a results page (the project's RESULTS.md)")
     rp.add_argument("--readme", default=None, metavar="FILE",
                     help="also rewrite the reward summary of FILE (the project's README.md) between its markers")
+    rp.add_argument("--paper-models", default=None, metavar="DIR",
+                    help="show beside each cell the score of MARBLER's own paper model, from the `evaluate --json` "
+                         "files <scenario>-<algo>.json in DIR (results/paper-models/marbler-jax: MARBLER's protocol)")
     rp.add_argument("--no-progress", action="store_true", help="no progress bar")
     rp.set_defaults(func=_report)
     qs = sub.add_parser("quickstart", help="the main job: train, evaluate, plot and render (a few minutes)")

@@ -25,7 +25,7 @@ import numpy as np
 
 from .benchmark import (ABSOLUTE, ENV_NAME, JAXROBOTARIUM_SCENARIOS, PAPER_ALGOS, PAPER_SCENARIOS, UNRECORDED_DEVICE,
                         cell_digest, load_results)
-from .checkpoints import atomic_write
+from .checkpoints import atomic_write, read_json
 from .evaluate import PAPER_TABLE2
 from .recipes import RECIPES, settings_digest
 from marbler_jax.scenarios.base import PROTOCOLS, merge_settings
@@ -215,9 +215,26 @@ def cell_mark(scenario: str, algo: str, runs: dict) -> str:
     return SCENARIO_SETTING_MARK if scenario in RECIPES[algo].scenario_hp else ""
 
 
-def metric_table(results: dict, metric: str, reps: int) -> str | None:
-    """One metric's Markdown table over every cell that has it; None where no cell does."""
+def paper_model_scores(folder: Path | None, metric: str) -> dict[tuple[str, str], str]:
+    """``{(scenario, algo): "mean ± half-width of its 95 % CI"}`` of ``metric`` for MARBLER's own paper models,
+    from the ``evaluate --json`` files ``<scenario>-<algo>.json`` in ``folder`` (``scripts/paper_models.py
+    evaluate`` writes them); ``{}`` without a folder."""
+    scores = {}
+    for path in sorted(Path(folder).glob("*-*.json")) if folder else ():
+        data = read_json(path)
+        values = data.get("episodes_metrics", {}).get(metric)
+        if values:
+            values = np.asarray(values, float)
+            half = 1.96 * values.std(ddof=1) / np.sqrt(len(values)) if len(values) > 1 else 0.0
+            scores[(data["scenario"], data["algo"])] = f"{_fmt(float(values.mean()))} ± {_fmt(float(half))}"
+    return scores
+
+
+def metric_table(results: dict, metric: str, reps: int, paper_models: Path | None = None) -> str | None:
+    """One metric's Markdown table over every cell that has it; None where no cell does. With
+    ``paper_models`` (:func:`paper_model_scores`'s folder) a column holds the paper's own model's score."""
     tasks = results.get(ENV_NAME, {})
+    models = paper_model_scores(paper_models, metric)
     rows = []
     for scenario in _ordered(tasks, SCENARIO_ORDER):
         for algo in _ordered(tasks[scenario], ALGO_ORDER):
@@ -235,12 +252,14 @@ def metric_table(results: dict, metric: str, reps: int) -> str | None:
             rows.append(f"| {scenario} | {algo}{mark} | {len(runs)} | {steps / 1e6:.1f}M | {_fmt(iqm)} [{_fmt(low)}, {_fmt(high)}] "
                         f"| {_fmt(best_mean)} ± {_fmt(float(np.std(best)))} | "
                         f"{f'{paper[0]:g} ± {paper[1]:g}' if paper else '—'} | "
-                        f"{'—' if ok is None else ('yes' if ok else '**no**')} |")
+                        + (f"{models.get((scenario, algo), '—')} | " if paper_models else "")
+                        + f"{'—' if ok is None else ('yes' if ok else '**no**')} |")
     if not rows:
         return None
+    model = " paper's model, here (mean ± 95 % CI) |" if paper_models else ""
     head = [f"### {TITLES[metric]}", "",
-            "| scenario | algorithm | seeds | env steps / seed | IQM [95 % CI] | best seed (mean ± std) | paper | reached |",
-            "|---|---|---|---|---|---|---|---|"]
+            f"| scenario | algorithm | seeds | env steps / seed | IQM [95 % CI] | best seed (mean ± std) | paper |{model} "
+            "reached |", "|---|---|---|---|---|---|---|" + "---|" * bool(paper_models) + "---|"]
     return "\n".join(head + rows) + "\n"
 
 
@@ -488,8 +507,9 @@ def _scenario_setting_notes(tasks: dict) -> list[str]:
     return lines
 
 
-def report_markdown(results: dict, reps: int = 2000) -> str:
-    """The whole report as Markdown, its curves linked as ``curves_<scenario>.png`` beside it."""
+def report_markdown(results: dict, reps: int = 2000, paper_models: Path | None = None) -> str:
+    """The whole report as Markdown, its curves linked as ``curves_<scenario>.png`` beside it (``paper_models``:
+    see :func:`metric_table`)."""
     tasks = results.get(ENV_NAME, {})
     if not tasks:
         raise ValueError("the results hold no cell yet; run marbler-jax benchmark first")
@@ -502,7 +522,7 @@ def report_markdown(results: dict, reps: int = 2000) -> str:
              f"{VIOLATION_LIMIT:g} % of episodes). Training time (updates only, summed over cells): "
              f"{training_time(tasks)}.", ""]
     for metric in METRICS:
-        table = metric_table(results, metric, reps)
+        table = metric_table(results, metric, reps, paper_models)
         if table:
             parts += [table, ""]
     if any(off_recipe(s, a, tasks[s][a]) for s, a in cells):
@@ -549,12 +569,13 @@ every seed; the wall time of each cell is in its runs' `absolute_metrics`.
 
 def write_report(folder: str | Path, out: str | Path | None = None, reps: int = 2000,
                  results_md: str | Path | None = None, readme: str | Path | None = None,
-                 progress: bool = False) -> list[Path]:
+                 progress: bool = False, paper_models: str | Path | None = None) -> list[Path]:
     """``report.md`` and ``curves_<scenario>.png`` of the benchmark in ``folder`` (into ``out``), with
     ``results_md`` the same report as the project's results page (image links relative to it), and with
     ``readme`` that file's reward summary (:func:`summary_table`, between its markers) rewritten.
     ``progress``: a bar over the scenarios' curves, then the tables (the bootstraps take minutes for a
-    whole table, seconds once ``.report-cache.json`` holds them)."""
+    whole table, seconds once ``.report-cache.json`` holds them). ``paper_models``: a folder of the paper's own
+    models' scores to show beside the cells (:func:`paper_model_scores`)."""
     if not isinstance(reps, int) or reps < 10:
         raise ValueError(f"reps must be an integer >= 10, got {reps!r}")
     folder = Path(folder)
@@ -565,6 +586,8 @@ def write_report(folder: str | Path, out: str | Path | None = None, reps: int = 
         if not readme.is_file():
             raise ValueError(f"--readme {readme} is not a file")
         replace_summary(readme.read_text(), "", readme.name)     # no markers: refused before any work
+    if paper_models is not None and not Path(paper_models).is_dir():
+        raise ValueError(f"--paper-models {paper_models} is not a folder")
     results = load_results(folder)
     out = Path(out) if out else folder
     out.mkdir(parents=True, exist_ok=True)
@@ -582,7 +605,7 @@ def write_report(folder: str | Path, out: str | Path | None = None, reps: int = 
             bar.update()
         bar.set_description("tables")
         report = out / "report.md"
-        body = report_markdown(results, reps)          # the bootstraps run once for both documents
+        body = report_markdown(results, reps, paper_models and Path(paper_models))   # bootstraps run once for both
         bar.update()
         atomic_write(report, "## MARBLER benchmark\n\n" + body)
         written.insert(0, report)

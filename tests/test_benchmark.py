@@ -246,6 +246,26 @@ def test_report_marks_a_cell_made_with_its_recipes_own_settings_for_the_scenario
     assert "| predator_capture_prey | vdn† | 1 |" in report.report_markdown(results, reps=20)
 
 
+def test_report_shows_the_paper_models_score_beside_each_cell(tmp_path):
+    """``--paper-models DIR``: each cell's row carries the paper's own model's score (mean ± 95 % CI over its
+    episodes) from ``evaluate --json`` files; a cell without one shows —."""
+    (tmp_path / "results.json").write_text(json.dumps({ENV_NAME: {"warehouse": {
+        "vdn": _runs([[30.0, 31.0], [20.0, 22.0]]), "qmix": _runs([[10.0, 12.0], [15.0, 14.0]])}}}))
+    models = tmp_path / "models"
+    models.mkdir()
+    (models / "warehouse-vdn.json").write_text(json.dumps(dict(scenario="warehouse", algo="vdn", episodes_metrics={
+        "reward": [28.0, 30.0, 29.0, 31.0]})))
+    report.write_report(tmp_path, reps=20, paper_models=models)
+    text = (tmp_path / "report.md").read_text()
+    assert "| paper | paper's model, here (mean ± 95 % CI) | reached |" in text
+    half = 1.96 * np.std([28.0, 30.0, 29.0, 31.0], ddof=1) / 2
+    assert f"| 28.7 ± 1.49 | 29.50 ± {half:.2f} | " in text
+    qmix = next(line for line in text.splitlines() if line.startswith("| warehouse | qmix"))
+    assert qmix.endswith("| 27.4 ± 1.02 | — | no |") or qmix.endswith("| 27.4 ± 1.02 | — | **no** |")
+    with pytest.raises(ValueError, match="--paper-models .*nowhere is not a folder"):
+        report.write_report(tmp_path, reps=20, paper_models=tmp_path / "nowhere")
+
+
 def test_report_shows_its_progress_unless_told_not_to(tmp_path, capsys):
     """The report's bootstraps take minutes on a whole table: the command shows a bar over its parts."""
     from marbler_jax_rl.cli import main as cli
