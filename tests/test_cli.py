@@ -343,8 +343,8 @@ def test_the_program_ends_without_the_interpreters_teardown_after_ctrl_c(monkeyp
 @pytest.mark.slow
 @pytest.mark.parametrize("delay", [9.0, 11.0, 13.0, 15.0])
 def test_ctrl_c_during_compilation_ends_with_130_not_a_crash(tmp_path, delay):
-    """SIGINT while XLA compiles the training programs (``delay`` seconds after the start, while they compile) printed
-    the resume line and then died with SIGSEGV (exit 139) in the interpreter's teardown."""
+    """SIGINT ``delay`` seconds after the start, while XLA compiles the training programs, printed the resume
+    line and then died with SIGSEGV (exit 139) in the interpreter's teardown."""
     import os
     import signal
     import subprocess
