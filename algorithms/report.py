@@ -224,10 +224,17 @@ def paper_model_scores(folder: Path | None, metric: str) -> dict[tuple[str, str]
         data = read_json(path)
         values = data.get("episodes_metrics", {}).get(metric)
         if values:
-            values = np.asarray(values, float)
-            half = 1.96 * values.std(ddof=1) / np.sqrt(len(values)) if len(values) > 1 else 0.0
-            scores[(data["scenario"], data["algo"])] = f"{_fmt(float(values.mean()))} ± {_fmt(float(half))}"
+            mean, half = mean_ci(values)
+            scores[(data["scenario"], data["algo"])] = f"{_fmt(mean)} ± {_fmt(half)}"
     return scores
+
+
+def mean_ci(values) -> tuple[float, float]:
+    """Mean of per-episode ``values`` and the half-width of its 95 % confidence interval (normal
+    approximation; 0 for a single value)."""
+    values = np.asarray(values, float)
+    half = 1.96 * values.std(ddof=1) / np.sqrt(len(values)) if len(values) > 1 else 0.0
+    return float(values.mean()), float(half)
 
 
 def metric_table(results: dict, metric: str, reps: int, paper_models: Path | None = None) -> str | None:

@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from marbler_jax_rl.report import mean_ci
+
 REPO = Path(__file__).resolve().parents[1]
 MODELS = REPO.parent / "shared" / "marbler" / "robotarium_gym" / "scenarios"
 SCENARIOS = {"predator_capture_prey": "PredatorCapturePrey", "warehouse": "Warehouse",
@@ -184,12 +186,6 @@ LEFT = {"predator_capture_prey": "prey_left", "material_transport": "material_le
 def _episodes(out: Path, loop: str, scenario: str, algo: str) -> dict | None:
     path = out / loop / f"{scenario}-{algo}.json"
     return json.loads(path.read_text())["episodes_metrics"] if path.exists() else None
-
-
-def mean_ci(values) -> tuple[float, float]:
-    """Mean and the half-width of its 95 % confidence interval (normal approximation, n >= 100)."""
-    values = np.asarray(values, float)
-    return float(values.mean()), float(1.96 * values.std(ddof=1) / np.sqrt(len(values)))
 
 
 def difference_ci(a, b) -> tuple[float, float, float]:
