@@ -19,7 +19,7 @@ import marbler_jax
 from marbler_jax.registry import canonical_name
 from . import registry
 from .data_parallel import over_devices
-from .run_writer import RunWriter, _json_floats, nan_stat, run_config
+from .run_writer import RunWriter, json_floats, nan_stat, run_config
 from marbler_jax.rollout import batched_rollout, episode_stats, make_rollout, first_episode_metrics
 
 
@@ -208,7 +208,7 @@ def train(env, cfg, run: RunWriter, options: LoopOptions = LoopOptions(), on_chu
     result = dict(trained=trained, random=random, train_seconds=seconds, compile_seconds=compile_seconds,
                   # this invocation's updates only (a resumed run trained the rest before), after compilation
                   env_steps_per_s=seeds * (num_updates - resumed_at) * steps_per_update / max(update_seconds, 1e-9),
-                  best_return=nan_stat(np.mean, run.best_scores), best_return_per_seed=_json_floats(run.best_scores),
+                  best_return=nan_stat(np.mean, run.best_scores), best_return_per_seed=json_floats(run.best_scores),
                   best_by="greedy test return" if test_episodes else "training return")
     run.finish(runner["params"], result)
     log(f"trained in {seconds:.1f} s ({compile_seconds:.1f} s of it compiling; "

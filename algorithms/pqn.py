@@ -70,13 +70,11 @@ class PQNConfig:
         if (self.num_envs * self.num_steps) % self.num_minibatches:
             raise ValueError(f"num_minibatches={self.num_minibatches} must divide num_envs * num_steps = "
                              f"{self.num_envs * self.num_steps}")
-        for name, low, high in (("lr", 0.0, 1.0), ("gamma", 0.0, 1.0), ("td_lambda", 0.0, 1.0),
-                                ("eps_start", 0.0, 1.0), ("eps_finish", 0.0, 1.0), ("max_grad_norm", 0.0, 1e6)):
+        for name, high, open_low in (("lr", 1.0, True), ("gamma", 1.0, True), ("max_grad_norm", 1e6, True),
+                                     ("td_lambda", 1.0, False), ("eps_start", 1.0, False), ("eps_finish", 1.0, False)):
             value = getattr(self, name)
-            low_ok = value > low if name in ("lr", "gamma", "max_grad_norm") else value >= low
-            if not (low_ok and value <= high):
-                raise ValueError(f"{name} must be in {'(' if name in ('lr', 'gamma', 'max_grad_norm') else '['}"
-                                 f"{low:g}, {high:g}], got {value}")
+            if not ((value > 0.0 if open_low else value >= 0.0) and value <= high):
+                raise ValueError(f"{name} must be in {'(' if open_low else '['}0, {high:g}], got {value}")
 
 
 def q_network(env, cfg: PQNConfig) -> QAgent:

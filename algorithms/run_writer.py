@@ -82,7 +82,7 @@ def check_folder(out: Path, config: dict, env, resume: bool) -> None:
                          "pass --resume to continue the run there, or choose a new --out")
 
 
-def _json_floats(values) -> list:
+def json_floats(values) -> list:
     """Floats for JSON (NaN -> None)."""
     return [float(v) if np.isfinite(v) else None for v in np.asarray(values, dtype=float)]
 
@@ -200,7 +200,7 @@ class RunWriter:
         last = json.loads(self.lines[-1])
         if tests is not None:
             last.update(test_return_mean=nan_stat(np.nanmean, scores), test_return_std=nan_stat(np.nanstd, scores))
-        last[SEED_SCORE_KEY[tests is not None]] = _json_floats(scores)
+        last[SEED_SCORE_KEY[tests is not None]] = json_floats(scores)
         self.lines[-1] = json.dumps(last)
         if self.board is not None:
             log_scalars(self.board, self.lines[-n:])
@@ -214,7 +214,7 @@ class RunWriter:
             checkpoints.save(self.best_manager, done, self.best_params)
         atomic_write(self.path / METRICS_FILE, "\n".join(self.lines) + "\n")
         if tests is not None:
-            rounded = {name: [_json_floats(np.round(np.asarray(row, float), 5)) for row in values]
+            rounded = {name: [json_floats(np.round(np.asarray(row, float), 5)) for row in values]
                        for name, values in tests.items()}
             self.test_lines.append(json.dumps(dict(update=done, env_steps=done * steps_per_update, episodes=rounded)))
             atomic_write(self.path / TESTS_FILE, "\n".join(self.test_lines) + "\n")
