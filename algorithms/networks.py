@@ -2,7 +2,7 @@
 
 * :class:`MLP` -- a plain ReLU/tanh MLP.
 * :class:`ActorCritic` -- separate policy and value MLPs (IPPO: the critic sees the agent's own
-  observation; MAPPO: the global state).
+  observation; MAPPO: the global state); :class:`RecurrentActorCritic` -- the same with a recurrent actor.
 * :class:`QAgent` -- the Q-network of the value-based learners (VDN, QMIX): EPyMARL's RNN agent
   (``fc -> ReLU -> GRU cell -> fc``) or a feed-forward variant, stepped one env step at a time with
   an explicit hidden state (reset to zeros at episode starts).
@@ -85,6 +85,36 @@ class ActorCritic(nn.Module):
         critic_in = obs if critic_obs is None else critic_obs
         value = MLP(widths + [1], self.activation, final_scale=1.0, name="critic")(critic_in)[..., 0]
         return logits, value
+
+
+class RecurrentActorCritic(nn.Module):
+    """A recurrent policy beside a feed-forward critic: the actor is :class:`QAgent`'s network (``Dense(H) ->
+    ReLU -> cell -> Dense(A)``, EPyMARL's ``RNNAgent``, the form of MARBLER's MAPPO actors) giving logits, the
+    critic :class:`ActorCritic`'s MLP.
+
+    ``act(hidden [..., H], obs [..., D], reset [..., 1]) -> (hidden, logits [..., A])`` steps the actor
+    (``reset`` zeroes the incoming hidden state); ``value(critic_obs [..., F]) -> [...]``.
+    """
+
+    num_actions: int
+    hidden: int = 128
+    layers: int = 2
+    activation: str = "tanh"
+    cell: str = "gru"
+
+    def setup(self):
+        self.actor = QAgent(self.num_actions, self.hidden, cell=self.cell)
+        self.critic = MLP([self.hidden] * self.layers + [1], self.activation, final_scale=1.0)
+
+    def __call__(self, hidden, obs, reset, critic_obs):
+        hidden, logits = self.act(hidden, obs, reset)
+        return hidden, logits, self.value(critic_obs)
+
+    def act(self, hidden, obs, reset):
+        return self.actor(hidden, obs, reset)
+
+    def value(self, critic_obs):
+        return self.critic(critic_obs)[..., 0]
 
 
 class QAgent(nn.Module):

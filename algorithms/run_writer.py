@@ -47,20 +47,30 @@ FORMAT_KEYS = ("manifests",)
 
 def changed_settings(out: Path, config: dict, env) -> list[str]:
     """The keys of :func:`run_config`'s ``config`` in which the run saved in ``out`` differs (``[]``: the
-    same run). Env settings added since the run was saved count as equal where ``config`` has them at
-    their defaults, renamed env settings under their current names, and ``learner_devices`` is not
+    same run). Env and algorithm settings added since the run was saved count as equal where ``config`` has
+    them at their defaults, renamed env settings under their current names, and ``learner_devices`` is not
     compared (it splits the same computation over devices; checkpoints restore on any count)."""
+    from .registry import get
+
     saved = {k: v for k, v in checkpoints.read_json(Path(out) / CONFIG_FILE).items() if k not in FORMAT_KEYS}
     config = {k: v for k, v in config.items() if k not in FORMAT_KEYS}
     config = dict(config, algorithm={k: v for k, v in config["algorithm"].items() if k != "learner_devices"})
     saved["algorithm"] = {k: v for k, v in saved.get("algorithm", {}).items() if k != "learner_devices"}
     saved.setdefault("test_episodes", 0)       # run folders from before the greedy tests
     saved["env"] = renamed_keys(saved.get("env", {}))
-    defaults = {f.name: f.default for f in dataclasses.fields(env.config)}
-    for name, value in config["env"].items():
-        if name not in saved["env"] and value == defaults.get(name, dataclasses.MISSING):
-            saved["env"][name] = value
+    _fill_defaults(saved["env"], config["env"], env.config)
+    if saved.get("algo") == config["algo"]:
+        _fill_defaults(saved["algorithm"], config["algorithm"], get(config["algo"]).config)
     return sorted(k for k in set(config) | set(saved) if saved.get(k) != config.get(k))
+
+
+def _fill_defaults(saved: dict, current: dict, settings) -> None:
+    """Give ``saved`` the settings it lacks where ``current`` has them at the defaults of the dataclass
+    ``settings`` (a setting added since ``saved`` was written, which the saved run trained with)."""
+    defaults = {f.name: f.default for f in dataclasses.fields(settings)}
+    for name, value in current.items():
+        if name not in saved and value == defaults.get(name, dataclasses.MISSING):
+            saved[name] = value
 
 
 def check_folder(out: Path, config: dict, env, resume: bool) -> None:

@@ -82,14 +82,22 @@ def test_numpy_policy_matches_jax_on_random_observations(case, tmp_path):
         np.testing.assert_allclose(h_np, memory, atol=1e-5, rtol=1e-5)
 
 
-@pytest.mark.parametrize("last_action", [False, True])
-def test_numpy_policy_replays_whole_episodes_like_the_jax_policy(tmp_path, last_action):
+REPLAYS = {"vdn": ("vdn", vdn, vdn.VDNConfig(hidden=32)),
+           "vdn-last-action": ("vdn", vdn, vdn.VDNConfig(hidden=32, last_action=True)),
+           "mappo-gru": ("mappo", mappo, mappo.MAPPOConfig(hidden=32, cell="gru")),
+           "ippo-mingru-per-agent": ("ippo", ippo, ippo.IPPOConfig(hidden=32, cell="mingru", shared=False))}
+
+
+@pytest.mark.parametrize("case", sorted(REPLAYS))
+def test_numpy_policy_replays_whole_episodes_like_the_jax_policy(tmp_path, case):
+    """Recurrent agents, value-based and PPO actors: exported, the numpy policy takes the JAX policy's actions
+    and carries the same memory along several episodes."""
+    algo, module, cfg = REPLAYS[case]
     env = marbler_jax.make("material_transport", control_period=15)
-    cfg = vdn.VDNConfig(hidden=32, last_action=last_action)
-    params = _params(vdn, cfg, env, seed=3)
-    export_params("vdn", cfg, params, env, tmp_path / "p")
+    params = _params(module, cfg, env, seed=3)
+    export_params(algo, cfg, params, env, tmp_path / "p")
     policy = load_policy(tmp_path / "p")
-    greedy = vdn.greedy_policy(env, cfg, params)
+    greedy = module.greedy_policy(env, cfg, params)
     step = jax.jit(env.step)
     act = jax.jit(greedy.step)
     obs, state = env.reset(jax.random.PRNGKey(0))

@@ -22,10 +22,12 @@ HP = dict(num_envs=8, num_steps=8, num_minibatches=2, update_epochs=1, hidden=16
 STEPS = 4 * 8 * 8  # 4 updates
 
 
-def test_chunked_run_matches_one_shot():
-    """Same keys and schedule; different chunkings compile differently, so equal to float rounding."""
+@pytest.mark.parametrize("cell", ["none", "gru"])
+def test_chunked_run_matches_one_shot(cell):
+    """Same keys and schedule; different chunkings compile differently, so equal to float rounding (recurrent
+    actors too: their hidden state and episode starts are runner state)."""
     env = marbler_jax.make("simple_navigation")
-    trainer = make_train(env, IPPOConfig(total_timesteps=STEPS, **HP))
+    trainer = make_train(env, IPPOConfig(total_timesteps=STEPS, cell=cell, **HP))
     one_shot, _ = jax.jit(trainer)(jax.random.PRNGKey(3))
     runner = trainer.init(jax.random.PRNGKey(3))
     run = jax.jit(trainer.run, static_argnums=1)
@@ -122,6 +124,20 @@ def test_changed_settings_name_what_differs_and_ignore_the_learners_device_count
     robots_loop = marbler_jax.make("predator_capture_prey", control_period=1)
     other = run_config("predator_capture_prey", "vdn", 3, 0, robots_loop, build_config("vdn", dict(lr=1e-4)), 64)
     assert changed_settings(tmp_path, other, robots_loop) == ["algorithm", "env", "seeds"]
+
+
+def test_settings_added_since_a_run_was_saved_compare_equal_at_their_defaults(tmp_path):
+    """A MAPPO run saved before ``cell`` existed resumes with the feed-forward default, not with another."""
+    from marbler_jax_rl.run_writer import changed_settings, run_config
+
+    env = marbler_jax.make("warehouse")
+    config = run_config("warehouse", "mappo", 2, 0, env, build_config("mappo", {}), 64)
+    old = json.loads(json.dumps(config))
+    del old["algorithm"]["cell"]
+    (tmp_path / "config.json").write_text(json.dumps(old))
+    assert changed_settings(tmp_path, config, env) == []
+    recurrent = run_config("warehouse", "mappo", 2, 0, env, build_config("mappo", dict(cell="gru")), 64)
+    assert changed_settings(tmp_path, recurrent, env) == ["algorithm"]
 
 
 @pytest.mark.parametrize("algo", ["ippo", "vdn"])
