@@ -170,7 +170,9 @@ RECIPES: Mapping[str, Recipe] = MappingProxyType({
 
 _PAPER_Q = dict(hidden=128, max_grad_norm=10.0, gamma=0.99, buffer_size=5000, batch_size=32, num_envs=8,
                 train_steps=8, eps_decay_steps=50_000, learning_starts=32 * 81)
-_PAPER_PPO = dict(hidden=128, lr=2e-4, update_epochs=4, clip_eps=0.2, ent_coef=0.01, num_envs=64, num_steps=64)
+# EPyMARL's PPO agents are its RNNAgent (a 128-unit GRU: MARBLER's mappo.json, agent "rnn", use_rnn True)
+_PAPER_PPO = dict(hidden=128, cell="gru", lr=2e-4, update_epochs=4, clip_eps=0.2, ent_coef=0.01, num_envs=64,
+                  num_steps=64)
 _PAPER_Q_STEPS = 5_000_000
 _MARBLER = dict(env=MARBLER_TRAINING_ENV)
 

@@ -84,6 +84,7 @@ def test_paper_value_based_settings_are_epymarls_model_files():
 def test_paper_mappo_none_and_unknown_names():
     _, mappo, steps = paper("mappo")
     assert (mappo.hidden, mappo.lr, mappo.update_epochs, mappo.clip_eps, mappo.ent_coef) == (128, 2e-4, 4, 0.2, 0.01)
+    assert mappo.cell == "gru" and RECIPES["mappo"].config.cell == "none"     # EPyMARL's GRU actor; ours an MLP
     assert steps == 25_000_000
     assert settings("none", "warehouse", "vdn") == ({}, {}, 1_000_000)
     assert set(RECIPE_NAMES) == {"recipe", "paper", "none"}
