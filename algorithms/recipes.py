@@ -97,10 +97,18 @@ class Recipe:
         return settings_digest(*self.settings(scenario))
 
 
+# Algorithm settings added after results files began to record settings digests, each with the value that trains
+# as before it existed: at that value a setting is left out of the digest, so a cell made before it existed keeps
+# its digest (and stays "done" for the benchmark and on-recipe in the report).
+NEUTRAL_SETTINGS: Mapping[str, Any] = MappingProxyType({"cell": "none"})     # IPPO/MAPPO's feed-forward actors
+
+
 def settings_digest(env_overrides: Mapping, hyperparameters: Mapping, total_steps: int) -> str:
     """12 hex digits naming what a run trains with, so a results file can tell which cells the current
-    recipe made. ``learner_devices`` is left out: it splits the same computation over devices."""
-    hp = {k: v for k, v in hyperparameters.items() if k != "learner_devices"}
+    recipe made. ``learner_devices`` is left out: it splits the same computation over devices; so is a
+    setting at its :data:`NEUTRAL_SETTINGS` value."""
+    hp = {k: v for k, v in hyperparameters.items()
+          if k != "learner_devices" and not (k in NEUTRAL_SETTINGS and v == NEUTRAL_SETTINGS[k])}
     blob = json.dumps({"env": dict(env_overrides), "hp": hp, "steps": int(total_steps)}, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 

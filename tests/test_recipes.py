@@ -115,6 +115,25 @@ def test_settings_digest_names_what_trains_and_ignores_learner_devices():
     assert RECIPES["qmix"].digest("warehouse") != digest
 
 
+def test_a_setting_added_at_its_neutral_value_keeps_the_digests_of_cells_made_before_it():
+    """PPO's ``cell`` came after the committed table: at "none" (what those cells trained with) it leaves
+    their digests alone, so they stay done and on-recipe; a GRU actor is another recipe."""
+    import json
+    from pathlib import Path
+
+    from marbler_jax_rl.report import off_recipe
+
+    env, hp, steps = RECIPES["mappo"].settings("warehouse")
+    assert hp["cell"] == "none"
+    before = {k: v for k, v in hp.items() if k != "cell"}
+    assert settings_digest(env, hp, steps) == settings_digest(env, before, steps)
+    assert settings_digest(env, dict(hp, cell="gru"), steps) != settings_digest(env, hp, steps)
+    table = json.loads((Path(__file__).resolve().parents[1] / "results/marbler-table2/results.json").read_text())
+    ppo_cells = [(s, a, runs) for s, algos in table["marbler"].items() for a, runs in algos.items()
+                 if a in ("mappo", "ippo")]
+    assert len(ppo_cells) == 14 and not any(off_recipe(*cell) for cell in ppo_cells)
+
+
 def test_step_budgets_name_registered_scenarios_and_match_jaxrobotarium():
     """A misspelt scenario in ``steps`` would silently fall back to the default budget; every recipe trains
     JaxRobotarium's scenarios for JaxRobotarium's own budgets (its Q-learning configs), Foraging for twice its
