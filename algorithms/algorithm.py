@@ -28,7 +28,7 @@ class Algorithm:
             ``recurrent``, ``cell``, ``hidden``, ``activation``, ``layers``, ``shared``, ``agent_ids`` and, for
             ``q_agent``, ``layer_norm``, ``last_action``; the acting network's ``float32`` arrays by name).
         recipes: ``{"recipe": Recipe, "paper": Recipe}`` (:class:`marbler_jax_rl.recipes.Recipe`), what
-            ``--preset`` trains with; a preset it lacks trains with its config's defaults (the built-ins'
+            ``--recipe`` trains with; a recipe it lacks trains with its config's defaults (the built-ins'
             recipes are :data:`marbler_jax_rl.recipes.RECIPES` and ``PAPER_RECIPES``).
         map_seeds_on_cpu: its seeds run one after another on a CPU (``lax.map``) rather than vmapped, where
             that is faster (:func:`marbler_jax_rl.driver.default_seed_batching`).

@@ -204,7 +204,7 @@ def _train(args) -> int:
     if saved is not None:                          # --resume: the run's own settings, the options given on top
         env_overrides, hp, steps = saved
     else:
-        env_overrides, hp, steps = settings(args.preset, canonical_name(args.scenario), args.algo)
+        env_overrides, hp, steps = settings(args.recipe, canonical_name(args.scenario), args.algo)
     env_overrides = merge_settings(env_overrides, _env_settings(args))
     hp.update(parse_overrides(args.hp, "--hp"))
     from .data_parallel import use_cpu_devices
@@ -231,12 +231,12 @@ def _saved_run(args):
     """For ``train --resume`` of a run folder with a ``config.json``: ``(env settings, hyperparameters, env
     steps)`` as the run saved them, with ``args``' scenario, algorithm, seeds, seed and test episodes set from
     the run unless the command line gives them (what it gives must match the run: the driver checks). ``None``
-    for a fresh run, or where ``--preset`` asks for a recipe's settings."""
+    for a fresh run, or where ``--recipe`` asks for a recipe's settings."""
     from marbler_jax.scenarios.base import renamed_keys
     from .checkpoints import read_json
 
     path = Path(args.out) / "config.json"
-    if not args.resume or not path.exists() or _given(args, "--preset"):
+    if not args.resume or not path.exists() or _given(args, "--recipe", "--preset"):
         return None
     try:
         saved = read_json(path)
@@ -675,9 +675,10 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--algo", default="ippo", metavar="ALGO",
                     help="an algorithm's name (`marbler-jax list` shows them) or MODULE:NAME of an Algorithm that is "
                          "not installed (docs/algorithms.md)")
-    tr.add_argument("--preset", default="recipe", choices=list(RECIPE_NAMES),
+    tr.add_argument("--recipe", "--preset", dest="recipe", default="recipe", choices=list(RECIPE_NAMES),
                     help="settings to start from (recipe: the algorithm's benchmark recipe, algorithms/recipes.py; "
-                         "paper: MARBLER's EPyMARL settings; none: the algorithm's defaults)")
+                         "paper: MARBLER's EPyMARL settings; none: the algorithm's defaults); --preset is its "
+                         "older name")
     tr.add_argument("--total-steps", type=env_steps, default=None,
                     help="env steps per seed (e.g. 5e6; default: the recipe's)")
     tr.add_argument("--seeds", type=int, default=1, help="seeds trained in one vmapped program")

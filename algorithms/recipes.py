@@ -46,7 +46,7 @@ from .qmix import QMIXConfig, QMIXNSConfig
 from .vdn import VDNConfig
 
 RECIPE_NAMES = ("recipe", "paper", "none")
-"""What ``marbler-jax train --preset`` accepts: the algorithm's recipe (default), MARBLER's EPyMARL
+"""What ``marbler-jax train --recipe`` accepts: the algorithm's recipe (default), MARBLER's EPyMARL
 settings, or every setting at the algorithm's and scenario's defaults."""
 
 # The robots' loop: controller and barrier every tick, as a bundle runs them on the robots.
@@ -203,12 +203,12 @@ def recipe(algo: str, name: str = "recipe") -> Recipe:
     from .registry import get
 
     if name not in RECIPE_NAMES:
-        raise ValueError(f"unknown preset {name!r}; available: {list(RECIPE_NAMES)}")
+        raise ValueError(f"unknown recipe {name!r}; available: {list(RECIPE_NAMES)}")
     algorithm = get(algo)            # an unknown name: one ValueError naming what is available
-    presets = ({"recipe": RECIPES[algo], **({"paper": PAPER_RECIPES[algo]} if algo in PAPER_RECIPES else {})}
-               if algo in RECIPES else algorithm.recipes)
-    if name != "none" and name in presets:
-        return presets[name]
+    named = ({"recipe": RECIPES[algo], **({"paper": PAPER_RECIPES[algo]} if algo in PAPER_RECIPES else {})}
+             if algo in RECIPES else algorithm.recipes)
+    if name != "none" and name in named:
+        return named[name]
     return Recipe(algo, algorithm.config(), env=MappingProxyType({}), default_steps=1_000_000)
 
 

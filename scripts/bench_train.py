@@ -1,6 +1,6 @@
-"""Training throughput: env-steps/s *including learning* for each algorithm and preset.
+"""Training throughput: env-steps/s *including learning* for each algorithm and recipe.
 
-For every (algorithm, preset) it builds the trainer exactly as ``marbler-jax train`` does and compiles
+For every (algorithm, recipe) it builds the trainer exactly as ``marbler-jax train`` does and compiles
 one chunk of ``--updates`` updates; then it runs every configuration's chunk ``--repeats`` times from
 the same runner state, the configurations taking turns (round-robin, the order rotated each round), and
 reports the best and the median wall time (``block_until_ready``; compile time separately). Taking turns
@@ -11,16 +11,16 @@ steps. ``scripts/profile_train.py`` uses the same machinery to split an update's
 Markdown table.
 
     python scripts/bench_train.py --out bench_out/train.json
-    python scripts/bench_train.py --algos vdn --presets recipe --scenario predator_capture_prey
-    python scripts/bench_train.py --algos vdn qmix --presets recipe --seeds 1 5   # seeds vmapped in one program
-    python scripts/bench_train.py --algos vdn qmix --presets recipe --learner-devices 1 2   # data-parallel steps
-    python scripts/bench_train.py --algos ippo --presets recipe --seeds 5 --seed-batching vmap devices  # seeds per device
-    python scripts/bench_train.py --algos vdn --presets recipe --learner-devices 2 --hp cell=mingru   # preset + overrides
-    python scripts/bench_train.py --algos qmix_ns --presets recipe --learner-devices 2 --repeats 6 \
+    python scripts/bench_train.py --algos vdn --recipes recipe --scenario predator_capture_prey
+    python scripts/bench_train.py --algos vdn qmix --recipes recipe --seeds 1 5   # seeds vmapped in one program
+    python scripts/bench_train.py --algos vdn qmix --recipes recipe --learner-devices 1 2   # data-parallel steps
+    python scripts/bench_train.py --algos ippo --recipes recipe --seeds 5 --seed-batching vmap devices  # seeds per device
+    python scripts/bench_train.py --algos vdn --recipes recipe --learner-devices 2 --hp cell=mingru   # recipe + overrides
+    python scripts/bench_train.py --algos qmix_ns --recipes recipe --learner-devices 2 --repeats 6 \
         --variants last_action=true last_action=false        # an A/B of one setting, timed alternately
-    python scripts/bench_train.py --algos vdn mappo --presets recipe --variants control_period=15 control_period=1
+    python scripts/bench_train.py --algos vdn mappo --recipes recipe --variants control_period=15 control_period=1
 
-``--hp key=value`` (repeatable, as in ``marbler-jax train``) overrides a preset's hyperparameters for
+``--hp key=value`` (repeatable, as in ``marbler-jax train``) overrides a recipe's hyperparameters for
 every algorithm that has the setting, and the env's config where the key is one of its fields (e.g.
 ``control_period=1``: the robots' loop). ``--variants`` adds one row per variant, each a comma-separated list
 of ``key=value`` overrides applied on top of ``--hp`` (``""`` for none).
@@ -115,7 +115,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scenario", default="predator_capture_prey")
     parser.add_argument("--algos", nargs="+", default=["ippo", "mappo", "vdn", "qmix", "qmix_ns"])
-    parser.add_argument("--presets", nargs="+", default=["recipe", "paper"])
+    parser.add_argument("--recipes", "--presets", dest="presets", nargs="+", default=["recipe", "paper"],
+                        help="recipes to start from, as train's --recipe takes them")
     parser.add_argument("--updates", type=int, default=5, help="updates per timed chunk")
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--seeds", type=int, nargs="+", default=[1], help="seed counts (vmapped in one program)")
@@ -126,7 +127,7 @@ def main() -> None:
                              "maps each algorithm's seeds); devices: one CPU device per core, never combined with "
                              "--learner-devices > 1")
     parser.add_argument("--hp", action="append", default=[], metavar="KEY=VALUE",
-                        help="override a preset hyperparameter (repeatable), e.g. --hp cell=mingru")
+                        help="override a recipe hyperparameter (repeatable), e.g. --hp cell=mingru")
     parser.add_argument("--variants", nargs="+", default=[""], metavar="KEY=VALUE[,KEY=VALUE]",
                         help="one row per variant: overrides on top of --hp, timed alternately with the others")
     parser.add_argument("--out", default="bench_out/train.json")
@@ -154,7 +155,7 @@ def main() -> None:
     atomic_write(Path(args.out), json.dumps(result, indent=2))
     print(f"\n{args.scenario}, {jax.default_backend()} backend" + (f", overrides {overrides}" if overrides else "")
           + f", best and median of {args.repeats} chunks per row, rows timed in turns\n")
-    print("| algorithm | preset | variant | seeds | seed batching | learner devices | env steps / update (all seeds) "
+    print("| algorithm | recipe | variant | seeds | seed batching | learner devices | env steps / update (all seeds) "
           "| env-steps/s incl. learning (best) | (median) | compile s |")
     print("|---|---|---|---:|---|---:|---:|---:|---:|---:|")
     for r in rows:

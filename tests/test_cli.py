@@ -249,6 +249,15 @@ def test_version_list_and_help_defaults(capsys):
     assert "(default: 5)" in capsys.readouterr().out
 
 
+def test_train_names_its_starting_settings_recipe_and_keeps_preset_as_the_older_name():
+    from marbler_jax_rl.cli import build_parser
+
+    parser = build_parser()
+    assert parser.parse_args(["train"]).recipe == "recipe"
+    assert parser.parse_args(["train", "--recipe", "paper"]).recipe == "paper"
+    assert parser.parse_args(["train", "--preset", "none"]).recipe == "none"
+
+
 def test_list_verbose_explains_every_config_key(capsys):
     """Every field of every registered scenario's config has a documented meaning, and ``list -v``
     prints it under the key."""

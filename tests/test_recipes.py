@@ -88,7 +88,7 @@ def test_paper_mappo_none_and_unknown_names():
     assert steps == 25_000_000
     assert settings("none", "warehouse", "vdn") == ({}, {}, 1_000_000)
     assert set(RECIPE_NAMES) == {"recipe", "paper", "none"}
-    with pytest.raises(ValueError, match=r"unknown preset 'fast'; available: \['recipe', 'paper', 'none'\]"):
+    with pytest.raises(ValueError, match=r"unknown recipe 'fast'; available: \['recipe', 'paper', 'none'\]"):
         recipe("vdn", "fast")
     with pytest.raises(ValueError, match="unknown algorithm 'dqn'"):
         recipe("dqn")
