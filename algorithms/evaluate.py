@@ -21,7 +21,7 @@ import numpy as np
 
 from marbler_jax.control_loop import ROBOTS_CONTROL_PERIOD
 from marbler_jax.deploy.bundle import deployment_settings
-from marbler_jax.rollout import first_episode_metrics, make_rollout
+from marbler_jax.rollout import batched_rollout, first_episode_metrics, make_rollout
 from . import registry
 from .run import DEFAULT_CHECKPOINT, Run
 
@@ -63,9 +63,13 @@ def first_episodes(env, traj) -> dict[str, np.ndarray]:
     return {k: np.asarray(v, dtype=float) for k, v in first_episode_metrics(env, done, info).items()}
 
 
-def greedy_episodes(env, policy, episodes: int, key) -> dict[str, np.ndarray]:
-    """``episodes`` greedy episodes (one per batched env) -> per-episode metric arrays."""
-    return first_episodes(env, make_rollout(env, episodes, env.max_steps, policy)(key)[1])
+def greedy_episodes(env, policy, episodes: int, key, start=None) -> dict[str, np.ndarray]:
+    """``episodes`` greedy episodes (one per batched env) -> per-episode metric arrays; ``start``: ``(obs,
+    state)`` of the ``episodes`` envs to begin from instead of fresh resets."""
+    if start is None:
+        return first_episodes(env, make_rollout(env, episodes, env.max_steps, policy)(key)[1])
+    rollout = jax.jit(lambda key, start: batched_rollout(env, key, episodes, env.max_steps, policy, start))
+    return first_episodes(env, rollout(key, start)[1])
 
 
 def summarize(values: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
@@ -146,16 +150,24 @@ def open_policy(folder, env_overrides: dict | None = None):
 
 
 def evaluate_policy(folder, episodes: int = 100, seed: int = 0, env_overrides: dict | None = None,
-                    per_episode: bool = False) -> dict:
+                    per_episode: bool = False, marbler_starts: list[dict] | None = None) -> dict:
     """Table II metrics of the numpy policy folder ``folder`` acting greedily in ``episodes`` batched
     episodes (env as :func:`open_policy` builds it). The policy's forward pass runs in JAX;
-    ``per_episode`` keeps every episode's metrics (``episodes_metrics``)."""
+    ``per_episode`` keeps every episode's metrics (``episodes_metrics``). ``marbler_starts``: the episodes
+    begin at these MARBLER starts (:mod:`marbler_jax_rl.marbler_starts`), one each, instead of fresh resets."""
     from marbler_jax.rollout import numpy_policy_greedy
 
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
     env, policy = open_policy(folder, env_overrides)
-    values = greedy_episodes(env, numpy_policy_greedy(policy), episodes, jax.random.PRNGKey(seed))
+    start = None
+    if marbler_starts is not None:
+        from .marbler_starts import batched_starts, marbler_class
+
+        if len(marbler_starts) != episodes:
+            raise ValueError(f"episodes = {episodes} must equal the number of MARBLER starts, {len(marbler_starts)}")
+        start = batched_starts(env, marbler_class(env.name), marbler_starts)
+    values = greedy_episodes(env, numpy_policy_greedy(policy), episodes, jax.random.PRNGKey(seed), start)
     result = dict(scenario=env.name, algo=policy.spec.get("algo"), policy=str(folder), env=policy.spec.get("env", {}),
                   env_overrides=env_overrides or {}, episodes=episodes, seed=seed,
                   control_period=env.config.control_period, protocol=env.config.protocol, pooled=summarize(values),

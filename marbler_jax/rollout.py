@@ -51,14 +51,18 @@ def random_actions(env, key, batch_shape=()):
     return jax.random.randint(key, tuple(batch_shape) + (env.num_agents,), 0, env.num_actions, jnp.int32)
 
 
-def batched_rollout(env, key, num_envs: int, num_steps: int, policy: Callable | None = None):
+def batched_rollout(env, key, num_envs: int, num_steps: int, policy: Callable | None = None, start=None):
     """Run ``num_envs`` envs for ``num_steps`` steps (auto-reset) with ``policy(key, obs) -> actions``
     or a :class:`StatefulPolicy` (uniform random when None). Returns the final state and the per-step ``(rewards, done, info)``
     stacked as ``[num_steps, num_envs, ...]``. Jit it with ``env``, ``num_envs``, ``num_steps`` and
-    ``policy`` static (see :func:`make_rollout`)."""
+    ``policy`` static (see :func:`make_rollout`). ``start``: ``(obs [num_envs, N, D], state [num_envs, ...])``
+    to begin from instead of fresh resets (e.g. MARBLER's own starts, :mod:`marbler_jax_rl.marbler_starts`)."""
     step = jax.vmap(env.step)
     key_reset, key_run = jax.random.split(key)
-    obs, state = jax.vmap(env.reset)(jax.random.split(key_reset, num_envs))
+    if start is None:
+        obs, state = jax.vmap(env.reset)(jax.random.split(key_reset, num_envs))
+    else:
+        obs, state = start
     if policy is not None:
         policy = as_stateful(policy)
     memory = policy.initial_carry((num_envs,)) if policy is not None else ()

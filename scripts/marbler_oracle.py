@@ -181,6 +181,21 @@ def run_episodes(scenario: str, episodes: int, seed: int, policy=None, robots_lo
 _TICKS: list = []
 
 
+def episode_starts(scenario: str, episodes: int, seed: int) -> list[dict]:
+    """The starts of the ``episodes`` episodes that ``evaluate --seed`` (or ``trace --seed``) plays with a policy,
+    in :mod:`marbler_jax_rl.marbler_starts`' layout: ``reset_poses [3, N]``, ``reset_state`` and ``reset_agents``.
+    MARBLER draws a start at each ``reset()`` from the generators :func:`make_env` seeds, and a policy's episode
+    draws nothing from them, so resetting alone gives the same sequence (``tests/test_marbler_parity.py``)."""
+    env, _, _ = make_env(scenario, seed)
+    starts = []
+    for _ in range(episodes):
+        with contextlib.redirect_stdout(io.StringIO()):
+            env.reset()
+        starts.append({"reset_poses": np.asarray(env.agent_poses, float).tolist(), "reset_state": _numeric_state(env),
+                       "reset_agents": [_numeric_state(a) for a in getattr(env, "agents", [])]})
+    return starts
+
+
 def _record_ticks() -> None:
     """Record every ``Robotarium.step`` call: the velocity it integrates and the pose after it."""
     import rps.robotarium as robotarium
@@ -298,7 +313,18 @@ def main(argv=None):
     tr.add_argument("--episodes", type=int, default=10)
     tr.add_argument("--seed", type=int, default=0)
     tr.add_argument("--out", required=True)
+    st = sub.add_parser("starts", help="the start states of the episodes evaluate/trace --seed play with a policy "
+                                       "(JSON)")
+    st.add_argument("--scenario", required=True)
+    st.add_argument("--episodes", type=int, default=100)
+    st.add_argument("--seed", type=int, default=0)
+    st.add_argument("--out", required=True)
     args = parser.parse_args(argv)
+    if args.command == "starts":
+        starts = episode_starts(args.scenario, args.episodes, args.seed)
+        Path(args.out).write_text(json.dumps(dict(scenario=MARBLER_JAX_NAMES.get(args.scenario, args.scenario),
+                                                  seed=args.seed, starts=starts)))
+        return
     if args.command == "trace":
         policy = None if args.policy is None else _load_policy(args.policy)
         np.savez_compressed(args.out, **trace_episodes(args.scenario, args.episodes, args.seed, policy))

@@ -10,6 +10,7 @@ import numpy as np
 
 import marbler_jax
 from marbler_jax import physics
+from marbler_jax_rl.marbler_starts import env_state
 from tests.conftest import golden_path
 
 TAGS = [f"s{s}_e{e}" for s in range(3) for e in range(2)]
@@ -79,14 +80,6 @@ def golden_env(name: str, episode: Episode, **overrides):
     return marbler_jax.make(name, physics="marbler", zero_reset_obs=True, **overrides)
 
 
-def base_state(env, poses, scenario_state):
-    from marbler_jax.env import EnvState
-
-    return EnvState(poses=jnp.asarray(poses, jnp.float64), scenario=scenario_state, step=jnp.int32(0),
-                    episode_return=jnp.float64(0), collided=jnp.bool_(False), out_of_bounds=jnp.bool_(False),
-                    cbf_multipliers=env.initial_multipliers(jnp.float64))
-
-
 def recorded_velocities(env, episode: Episode, t: int) -> np.ndarray:
     """MARBLER's command at each control refresh of step ``t``: ``[num_segments, N, 2]``.
 
@@ -121,58 +114,10 @@ def replay_recorded(env, state, episode: Episode):
     return {k: (np.stack(v) if k != "info" else v) for k, v in out.items()}
 
 
-# scenario file -> (our name, reset-state builder(episode, float dtype))
-def _simple(ep):
-    from marbler_jax.scenarios.simple_navigation import SimpleState
-
-    return SimpleState(goal=jnp.asarray(ep.meta["reset_state"]["goal_loc"][0], jnp.float64))
-
-
-def _pcp(ep):
-    from marbler_jax.scenarios.predator_capture_prey import PredatorCapturePreyState
-
-    rs = ep.meta["reset_state"]
-    return PredatorCapturePreyState(prey=jnp.asarray(rs["prey_loc"], jnp.float64),
-                                    sensed=jnp.asarray(rs["prey_sensed"]), captured=jnp.asarray(rs["prey_captured"]))
-
-
-def _warehouse(ep):
-    from marbler_jax.scenarios.warehouse import WarehouseState
-
-    return WarehouseState(loaded=jnp.asarray([a["loaded"] for a in ep.meta["reset_agents"]]))
-
-
-def _mt(ep):
-    from marbler_jax.scenarios.material_transport import MaterialTransportState
-
-    rs = ep.meta["reset_state"]
-    return MaterialTransportState(load=jnp.asarray([a["load"] for a in ep.meta["reset_agents"]], jnp.int32),
-                                  zone1=jnp.int32(rs["zone1_load"]), zone2=jnp.int32(rs["zone2_load"]),
-                                  messages=jnp.asarray(rs["messages"], jnp.int32))
-
-
-def _at(ep):
-    from marbler_jax.scenarios.arctic_transport import ArcticTransportState
-
-    rs = ep.meta["reset_state"]
-    agents = ep.meta["reset_agents"]
-    return ArcticTransportState(grid=jnp.asarray(rs["grid"], jnp.int32), goal_col=jnp.int32(rs["goal_loc"][1]),
-                                tile=jnp.asarray([a["pixel_type"] for a in agents], jnp.int32),
-                                reached=jnp.asarray([a["reached_goal"] for a in agents]))
-
-
-SCENARIO_FILES = {
-    "Simple": ("simple_navigation", _simple),
-    "PredatorCapturePrey": ("predator_capture_prey", _pcp),
-    "Warehouse": ("warehouse", _warehouse),
-    "MaterialTransport": ("material_transport", _mt),
-    "ArcticTransport": ("arctic_transport", _at),
-}
-
-
 def initial_state(env, name_file: str, episode: Episode):
-    builder = SCENARIO_FILES[name_file][1]
-    return base_state(env, np.swapaxes(episode.data["reset_poses"], 0, 1), builder(episode))
+    """``env``'s float64 state at the episode's recorded MARBLER start."""
+    return env_state(env, name_file, episode.data["reset_poses"], episode.meta["reset_state"],
+                     episode.meta["reset_agents"], jnp.float64)
 
 
 def assert_matches_marbler(env, out: dict, ep: Episode) -> None:

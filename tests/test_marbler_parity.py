@@ -11,6 +11,7 @@ version plays 100 (half random, half the model). Skips where ``../shared/marbler
 from __future__ import annotations
 
 import fcntl
+import json
 import os
 import subprocess
 import sys
@@ -22,7 +23,8 @@ import pytest
 
 import marbler_jax
 from marbler_jax_rl.epymarl import import_model
-from tests.golden_rollouts import SCENARIO_FILES, assert_matches_marbler, episodes_from, initial_state, replay_recorded
+from marbler_jax_rl.marbler_starts import SCENARIOS as SCENARIO_FILES
+from tests.golden_rollouts import assert_matches_marbler, episodes_from, initial_state, replay_recorded
 
 REPO = Path(__file__).resolve().parents[1]
 MARBLER = REPO.parent / "shared" / "marbler"
@@ -74,6 +76,14 @@ def check_scenario(fname: str, episodes: int, tmp_path: Path) -> int:
     import_model(model.with_suffix(".th"), model.with_suffix(".json"), name, policy)
     played = (trace(python, fname, episodes, 7, tmp_path / "random.npz")
               + trace(python, fname, episodes, 8, tmp_path / "model.npz", policy))
+    # the oracle's `starts` (resets alone) gives the starts of the episodes a policy plays from the same seed
+    command = [python, REPO / "scripts" / "marbler_oracle.py", "starts", "--scenario", fname, "--episodes",
+               str(episodes), "--seed", "8", "--out", tmp_path / "starts.json"]
+    subprocess.run([str(c) for c in command], check=True, capture_output=True, timeout=600)
+    starts = json.loads((tmp_path / "starts.json").read_text())["starts"]
+    for start, ep in zip(starts, played[episodes:], strict=True):
+        np.testing.assert_array_equal(start["reset_poses"], ep.data["reset_poses"], err_msg=ep.tag)
+        assert start["reset_state"] == ep.meta["reset_state"] and start["reset_agents"] == ep.meta["reset_agents"]
     compared = 0
     with jax.enable_x64(True):
         env = marbler_jax.make(name, protocol="marbler")

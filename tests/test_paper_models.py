@@ -50,3 +50,56 @@ def test_the_table_reads_every_loop_and_judges_agreement(paper_models, tmp_path)
     assert "(a) and (b) agree on 1 of 2 models." in text
     low, high = paper_models.difference_ci([1.0, 2.0, 3.0] * 50, [1.0, 2.0, 3.0] * 50)[1:]
     assert low < 0 < high
+
+
+def test_the_difference_is_paired_when_both_sides_played_the_same_starts(paper_models, tmp_path):
+    """Each start's luck (e.g. Material Transport's zone loads) is shared: the episode-by-episode difference
+    sees through it where two independent means would not."""
+    rng = np.random.default_rng(1)
+    luck = rng.normal(scale=3.0, size=500)
+    a, b = 30 + luck + rng.normal(scale=0.3, size=500), 30.1 + luck + rng.normal(scale=0.3, size=500)
+    paired = paper_models.difference_ci(a, b, paired=True)
+    welch = paper_models.difference_ci(a, b)
+    assert paired[2] < 0 < welch[2] and paired[2] - paired[1] < (welch[2] - welch[1]) / 5
+
+    def write(loop, rewards, starts):
+        metrics = {"reward": list(rewards), "steps": [60.0] * 500, "collisions": [0.0] * 500,
+                   "out_of_bounds": [0.0] * 500, "prey_left": [0.0] * 500}
+        (tmp_path / loop).mkdir(exist_ok=True)
+        (tmp_path / loop / "predator_capture_prey-vdn.json").write_text(
+            json.dumps({"episodes_metrics": metrics, **({"marbler_starts": True} if starts else {})}))
+
+    write("marbler", b, False)
+    write("marbler-jax", a, True)
+    row = next(line for line in paper_models.table_markdown(tmp_path).splitlines()
+               if line.startswith("| predator_capture_prey | vdn |"))
+    assert "| **no** |" in row and f"{paired[0]:+.2f} [{paired[1]:+.2f}, {paired[2]:+.2f}]" in row
+    write("marbler-jax", a, False)                    # fresh starts: the difference of two independent means
+    row = next(line for line in paper_models.table_markdown(tmp_path).splitlines()
+               if line.startswith("| predator_capture_prey | vdn |"))
+    assert "| yes |" in row
+
+
+def test_episodes_begin_at_marbler_starts():
+    """A Material Transport start with both zones empty ends at its first step; MARBLER's usual start does not,
+    and the robots begin at its poses."""
+    import jax
+
+    import marbler_jax
+    from marbler_jax_rl.evaluate import greedy_episodes
+    from marbler_jax_rl.marbler_starts import batched_starts
+
+    env = marbler_jax.make("material_transport", protocol="marbler")
+    poses = [[-1.4, -1.4, -1.1, -1.1], [-0.6, 0.3, -0.3, 0.6], [0.0] * 4]
+    agents = [{"load": 0}] * 4
+
+    def start(zone1, zone2):
+        return {"reset_poses": poses, "reset_state": {"zone1_load": zone1, "zone2_load": zone2, "messages": [0] * 4},
+                "reset_agents": agents}
+
+    obs, state = batched_starts(env, "MaterialTransport", [start(0, 0), start(100, 20)])
+    np.testing.assert_allclose(state.poses[1], np.transpose(poses), atol=1e-6)
+    assert not np.asarray(obs).any()                                    # MARBLER's all-zero first observation
+    values = greedy_episodes(env, None, 2, jax.random.PRNGKey(0), (obs, state))
+    assert values["steps"][0] == 1 and values["material_left"][0] == 0
+    assert values["steps"][1] > 1 and values["material_left"][1] > 0

@@ -19,8 +19,9 @@ import pytest
 
 import marbler_jax
 from marbler_jax import physics
-from tests.golden_rollouts import (SCENARIO_FILES, assert_matches_marbler, golden_env, initial_state, load_episodes,
-                                   recorded_velocities, replay_recorded)
+from marbler_jax_rl.marbler_starts import SCENARIOS as SCENARIO_FILES
+from tests.golden_rollouts import (assert_matches_marbler, golden_env, initial_state, load_episodes, recorded_velocities,
+                                   replay_recorded)
 
 FILES = sorted(SCENARIO_FILES)
 
