@@ -11,9 +11,13 @@ Material Transport and Arctic Transport) are imported with ``marbler-jax import`
 and in marbler-jax with MARBLER's settings but its ``robotarium: True`` loop (controller every iteration),
 
 each over ``--episodes`` episodes, and written as one JSON file per model and loop under ``--out``;
-``table`` turns them into the Markdown table that RESULTS.md holds. Steps (each skips what is done):
+``table`` turns them into the Markdown table that RESULTS.md holds. marbler-jax plays the episodes from the
+very start states MARBLER's code plays with ``--seed`` (``starts``: MARBLER's robots' poses and task state,
+e.g. Material Transport's zone loads), so (a) and (b) are compared episode by episode and share every start's
+luck. Steps (each skips what is done):
 
     python scripts/paper_models.py import                       # policies/ from ../shared/marbler
+    python scripts/paper_models.py starts                       # starts/ in .marbler-venv (seconds)
     python scripts/paper_models.py marbler --workers 2           # (b) in .marbler-venv, ~1 episode/s a process
     python scripts/paper_models.py evaluate                     # (a), (d) and robotarium: True
     python scripts/paper_models.py robotarium --episodes 30 --workers 2   # (e) in .rps-v2-venv
@@ -64,30 +68,53 @@ def _import(args) -> None:
 
 
 def _marbler(args) -> None:
-    """(b): every model in MARBLER's own code, one process per model (``--workers`` at a time), skipping
-    finished files."""
+    """(b): every model (of ``--scenarios``) in MARBLER's own code, one process per model (``--workers`` at a
+    time), skipping finished files; with ``--tight-qp`` the barrier's QP solved near-exactly (folder
+    ``marbler-tight-qp/``), to measure the loose solve's share of a difference between (a) and (b)."""
     from concurrent.futures import ThreadPoolExecutor
+
+    folder = args.out / ("marbler-tight-qp" if args.tight_qp else "marbler")
 
     def run(item):
         scenario, algo = item
-        target = args.out / "marbler" / f"{scenario}-{algo}.json"
+        target = folder / f"{scenario}-{algo}.json"
         tmp = target.with_suffix(".json.part")
         subprocess.run([args.python, str(REPO / "scripts" / "marbler_oracle.py"), "evaluate", "--scenario",
                         SCENARIOS[scenario], "--policy", str(policy_dir(args.out, scenario, algo)),
-                        "--episodes", str(args.episodes), "--seed", str(args.seed), "--out", str(tmp)],
+                        "--episodes", str(args.episodes), "--seed", str(args.seed), "--out", str(tmp)]
+                       + (["--tight-qp"] if args.tight_qp else []),
                        check=True, stderr=subprocess.DEVNULL,
                        env=dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1"))   # a core per process
         tmp.rename(target)
 
-    (args.out / "marbler").mkdir(parents=True, exist_ok=True)
+    folder.mkdir(parents=True, exist_ok=True)
     todo = [(scenario, algo) for scenario, algo, _, _ in models()
-            if not (args.out / "marbler" / f"{scenario}-{algo}.json").exists()]
+            if (args.scenarios is None or scenario in args.scenarios)
+            and not (folder / f"{scenario}-{algo}.json").exists()]
     with ThreadPoolExecutor(args.workers) as pool:
         list(pool.map(run, todo))
 
 
+def starts_file(out: Path, scenario: str) -> Path:
+    return out / "starts" / f"{scenario}.json"
+
+
+def _starts(args) -> None:
+    """The start states of the ``--episodes`` episodes MARBLER's code plays with ``--seed`` (each scenario)."""
+    for scenario, marbler_class in SCENARIOS.items():
+        target = starts_file(args.out, scenario)
+        if target.exists():
+            continue
+        target.parent.mkdir(parents=True, exist_ok=True)
+        subprocess.run([args.python, str(REPO / "scripts" / "marbler_oracle.py"), "starts", "--scenario", marbler_class,
+                        "--episodes", str(args.episodes), "--seed", str(args.seed), "--out", str(target)],
+                       check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        print(f"{scenario}: {args.episodes} starts of seed {args.seed} -> {target}")
+
+
 def _evaluate(args) -> None:
-    """(a) and (d): every model in marbler-jax, in MARBLER's protocol and in the robots' loop."""
+    """(a) and (d): every model in marbler-jax, in MARBLER's protocol and in the robots' loop, from MARBLER's
+    starts where ``starts`` wrote them (else from fresh resets)."""
     sys.path.insert(0, str(REPO))
     from marbler_jax_rl.evaluate import evaluate_policy
 
@@ -101,9 +128,13 @@ def _evaluate(args) -> None:
             if target.exists():
                 continue
             target.parent.mkdir(parents=True, exist_ok=True)
+            starts = None
+            if starts_file(args.out, scenario).exists():
+                starts = json.loads(starts_file(args.out, scenario).read_text())["starts"][:args.episodes]
             start = time.perf_counter()
             result = evaluate_policy(policy_dir(args.out, scenario, algo), args.episodes, seed=args.seed,
-                                     env_overrides=env, per_episode=True)
+                                     env_overrides=env, per_episode=True, marbler_starts=starts)
+            result["marbler_starts"] = starts is not None
             result["seconds"] = round(time.perf_counter() - start, 1)
             target.write_text(json.dumps(result))
             print(f"{loop} {scenario} {algo}: reward {result['pooled']['reward']['mean']:.2f} "
@@ -188,12 +219,27 @@ def _episodes(out: Path, loop: str, scenario: str, algo: str) -> dict | None:
     return json.loads(path.read_text())["episodes_metrics"] if path.exists() else None
 
 
-def difference_ci(a, b) -> tuple[float, float, float]:
-    """``mean(a) - mean(b)`` with its 95 % CI (Welch, normal approximation)."""
+def difference_ci(a, b, paired: bool = False) -> tuple[float, float, float]:
+    """``mean(a) - mean(b)`` with its 95 % CI (normal approximation): of the episode-by-episode differences where
+    ``paired`` (the same starts, in order), else Welch's."""
     a, b = np.asarray(a, float), np.asarray(b, float)
-    diff = a.mean() - b.mean()
-    half = 1.96 * np.sqrt(a.var(ddof=1) / len(a) + b.var(ddof=1) / len(b))
-    return float(diff), float(diff - half), float(diff + half)
+    if paired:
+        diff = a - b
+        mean, half = diff.mean(), 1.96 * diff.std(ddof=1) / np.sqrt(len(diff))
+    else:
+        mean = a.mean() - b.mean()
+        half = 1.96 * np.sqrt(a.var(ddof=1) / len(a) + b.var(ddof=1) / len(b))
+    return float(mean), float(mean - half), float(mean + half)
+
+
+def paired(out: Path, loop: str, scenario: str, algo: str, other: list) -> bool:
+    """Whether ``loop``'s episodes of a model began at MARBLER's starts, those ``other`` (MARBLER's code, seed
+    ``--seed``) played, in the same order."""
+    path = out / loop / f"{scenario}-{algo}.json"
+    if not path.exists():
+        return False
+    result = json.loads(path.read_text())
+    return result.get("marbler_starts", False) and len(result["episodes_metrics"]["reward"]) == len(other)
 
 
 def _cell(values, digits: int = 2) -> str:
@@ -225,10 +271,13 @@ def table_markdown(out: Path) -> str:
         "drive-in to the start poses skipped); (c) is the paper's Table II (mean ± standard deviation over 100 "
         "episodes). Elsewhere mean ± 95 % CI half-width over "
         + ", ".join(f"{n} episodes for {LOOPS[loop][:3]}" for loop, n in counts.items())
-        + "; *agree*: the 95 % CI of (a) − (b) contains 0. Made with:",
+        + ". marbler-jax plays its episodes from the start states MARBLER's code played (its robots' poses and "
+        "task state, drawn by MARBLER's own reset), so (a) and (b) face the same episodes; *agree*: the 95 % "
+        "CI of the episode-by-episode difference (a) − (b) contains 0. Made with:",
         "",
         "```bash",
-        "python scripts/paper_models.py import && python scripts/paper_models.py evaluate",
+        "python scripts/paper_models.py import && python scripts/paper_models.py starts   # starts in .marbler-venv",
+        "python scripts/paper_models.py evaluate",
         "python scripts/paper_models.py marbler --workers 2          # in .marbler-venv (its README says how)",
         "python scripts/paper_models.py robotarium --episodes 30 --workers 2   # in the tests' .rps-v2-venv",
         "python scripts/paper_models.py table --results-md RESULTS.md --readme README.md",
@@ -246,7 +295,8 @@ def table_markdown(out: Path) -> str:
         paper = PAPER_TABLE2.get(scenario, {}).get(algo, {}).get("reward")
         diff, verdict = "—", "—"
         if a is not None and b is not None:
-            mean, low, high = difference_ci(a["reward"], b["reward"])
+            mean, low, high = difference_ci(a["reward"], b["reward"],
+                                            paired(out, "marbler-jax", scenario, algo, b["reward"]))
             diff, ok = f"{mean:+.2f} [{low:+.2f}, {high:+.2f}]", low <= 0 <= high
             verdict = "yes" if ok else "**no**"
             agree.append(ok)
@@ -257,17 +307,8 @@ def table_markdown(out: Path) -> str:
                      f"{_cell(e and e['reward'])} |")
     lines += ["", f"(a) and (b) agree on {sum(agree)} of {len(agree)} models."]
     if disagree:
-        lines += ["", "Where they differ (" + ", ".join(f"{s} {a}" for s, a in disagree) + "), the difference is in the "
-                  "commands. Given MARBLER's own commands, marbler-jax repeats MARBLER's episodes step for step "
-                  "(`tests/test_marbler_parity.py`), so only the commands can differ in a closed loop: "
-                  "MARBLER's controller (`robotarium_gym/utilities/controller.py`, line 14, "
-                  "`create_single_integrator_barrier_certificate2(safety_radius=.2)`) solves the barrier QP with "
-                  "the cvxopt options rps sets when it is imported (`rps/utilities/barrier_certificates.py`, lines "
-                  "18-20: `reltol` and `feastol` 1e-2, 50 iterations), which leave commands up to ~0.2 m/s from "
-                  "the exact solution near other robots and walls (`../shared/golden` README), while marbler-jax "
-                  "solves it tightly, in float32. The out-of-bounds rates below differ with the reward. "
-                  "`scripts/marbler_oracle.py evaluate --tight-qp` runs MARBLER's code with a near-exact solve, "
-                  "to measure the solver's share."]
+        lines += ["", "Where they differ: " + ", ".join(f"{s} {a}" for s, a in disagree) + "."]
+    lines += tight_qp_lines(out)
     lines += ["",
               "### Task metrics: (a) marbler-jax, MARBLER's protocol / (b) MARBLER's code", "",
               "| scenario | algorithm | steps | prey / material left | collisions % | out of bounds % |",
@@ -316,17 +357,45 @@ def table_markdown(out: Path) -> str:
     return "\n".join(lines) + "\n"
 
 
+def tight_qp_lines(out: Path) -> list[str]:
+    """MARBLER's code with its barrier's QP solved near-exactly (b') beside rps's loose solve (b), where
+    ``marbler --tight-qp`` ran: what the loose solve does to a model's score."""
+    rows = [(s, a, _episodes(out, "marbler", s, a), _episodes(out, "marbler-tight-qp", s, a)) for s, a, _, _ in models()]
+    rows = [row for row in rows if row[2] is not None and row[3] is not None]
+    if not rows:
+        return []
+    scenarios = sorted({s for s, _, _, _ in rows})
+    lines = ["", "### MARBLER's loose barrier solve", "",
+             "MARBLER's controller (`robotarium_gym/utilities/controller.py`, line 14) solves the barrier QP with the "
+             "cvxopt options rps sets when it is imported (`rps/utilities/barrier_certificates.py`, lines 18-20: "
+             "`reltol` and `feastol` 1e-2, 50 iterations), which leave its commands off the exact solution near other "
+             "robots (marbler-jax solves the QP exactly). The same models in MARBLER's code with a near-exact solve "
+             f"(b', {len(rows[0][3]['reward'])} episodes each, the same starts as (b): `python "
+             f"scripts/paper_models.py marbler --tight-qp --scenarios {' '.join(scenarios)}`, in .marbler-venv):", "",
+             "| scenario | algorithm | (b) MARBLER, rps's QP | (b') MARBLER, tight QP | (b') − (b) [95 % CI] | "
+             "collisions % (b) / (b') | out of bounds % (b) / (b') |", "|---|---|---|---|---|---|---|"]
+    for scenario, algo, loose, tight in rows:
+        mean, low, high = difference_ci(tight["reward"], loose["reward"], len(tight["reward"]) == len(loose["reward"]))
+        lines.append(f"| {scenario} | {algo} | {_cell(loose['reward'])} | {_cell(tight['reward'])} | "
+                     f"{mean:+.2f} [{low:+.2f}, {high:+.2f}] | {_cell(loose['collisions'], 1)} / "
+                     f"{_cell(tight['collisions'], 1)} | {_cell(loose['out_of_bounds'], 1)} / "
+                     f"{_cell(tight['out_of_bounds'], 1)} |")
+    return lines
+
+
 def summary_line(out: Path) -> str:
     """The README's sentence on the paper's models: how many agree between marbler-jax and MARBLER's code."""
     agree = total = 0
     for scenario, algo, _, _ in models():
         a, b = (_episodes(out, loop, scenario, algo) for loop in ("marbler-jax", "marbler"))
         if a is not None and b is not None:
-            low, high = difference_ci(a["reward"], b["reward"])[1:]
+            low, high = difference_ci(a["reward"], b["reward"], paired(out, "marbler-jax", scenario, algo,
+                                                                       b["reward"]))[1:]
             agree, total = agree + (low <= 0 <= high), total + 1
     return (f"MARBLER's own 16 paper models, imported with `marbler-jax import`, score the same in marbler-jax's "
-            f"`marbler` protocol as in MARBLER's code on {agree} of {total} models (95 % CI of the difference "
-            "contains 0; RESULTS.md, *The paper's own models*, with the robots' loop and rps v2 beside them).")
+            f"`marbler` protocol as in MARBLER's code on {agree} of {total} models, playing the same start states "
+            "(95 % CI of the episode-by-episode difference contains 0; RESULTS.md, *The paper's own models*, with "
+            "the robots' loop and rps v2 beside them).")
 
 
 def _table(args) -> None:
@@ -349,22 +418,24 @@ def _table(args) -> None:
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("command", choices=["import", "marbler", "evaluate", "robotarium", "table"])
+    parser.add_argument("command", choices=["import", "starts", "marbler", "evaluate", "robotarium", "table"])
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument("--episodes", type=int, default=500)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=1, help="MARBLER processes at a time (for `marbler`)")
     parser.add_argument("--python", default=None,
-                        help="a Python with MARBLER's stack (for `marbler`; default .marbler-venv) or with rps v2 (for "
+                        help="a Python with MARBLER's stack (for `starts`, `marbler`; default .marbler-venv) or with rps v2 (for "
                              "`robotarium`; default .rps-v2-venv, the test suite's)")
     parser.add_argument("--scenarios", nargs="+", choices=list(SCENARIOS), default=None,
-                        help="only these scenarios' models (for `robotarium`)")
+                        help="only these scenarios' models (for `marbler` and `robotarium`)")
+    parser.add_argument("--tight-qp", action="store_true",
+                        help="`marbler`: solve MARBLER's barrier QP near-exactly (writes marbler-tight-qp/)")
     parser.add_argument("--results-md", default=None, help="page whose paper-models block `table` rewrites")
     parser.add_argument("--readme", default=None, help="page whose paper-models-summary block `table` rewrites")
     args = parser.parse_args(argv)
     if args.python is None:
         args.python = str(REPO / (".rps-v2-venv" if args.command == "robotarium" else ".marbler-venv") / "bin" / "python")
-    {"import": _import, "marbler": _marbler, "evaluate": _evaluate, "robotarium": _robotarium,
+    {"import": _import, "starts": _starts, "marbler": _marbler, "evaluate": _evaluate, "robotarium": _robotarium,
      "table": _table}[args.command](args)
 
 
