@@ -230,14 +230,14 @@ def _numeric_state(obj) -> dict:
     return {k: v for k, v in ((k, _plain(v)) for k, v in vars(obj).items()) if v is not None}
 
 
-def trace_episodes(scenario: str, episodes: int, seed: int, policy=None) -> dict[str, np.ndarray]:
+def trace_episodes(scenario: str, episodes: int, seed: int, policy=None, tight_qp: bool = False) -> dict[str, np.ndarray]:
     """Whole MARBLER episodes in the layout of ``../shared/golden/rollouts`` (README section (d)): per episode
     ``e{i}_`` arrays ``actions``, ``reset_poses``, ``obs``, ``rewards``, ``dones``, ``poses``, ``iter_poses``,
     ``iter_vels``, ``iter_index``, and ``meta`` (JSON) with each episode's ``reset_state``, ``reset_agents``
     (numeric attributes after reset) and ``step_info`` (message / remaining per step)."""
     scenario = MARBLER_JAX_NAMES.get(scenario, scenario)
     _record_ticks()
-    env, config, _ = make_env(scenario, seed)
+    env, config, _ = make_env(scenario, seed, tight_qp=tight_qp)
     rng = np.random.default_rng(seed)
     arrays, meta = {}, {"config": {k: v for k, v in config.items() if _plain(v) is not None or isinstance(v, str)},
                         "episodes": []}
@@ -312,6 +312,7 @@ def main(argv=None):
     tr.add_argument("--policy", default=None, help="numpy policy folder (default: uniform random actions)")
     tr.add_argument("--episodes", type=int, default=10)
     tr.add_argument("--seed", type=int, default=0)
+    tr.add_argument("--tight-qp", action="store_true", help="as evaluate --tight-qp")
     tr.add_argument("--out", required=True)
     st = sub.add_parser("starts", help="the start states of the episodes evaluate/trace --seed play with a policy "
                                        "(JSON)")
@@ -327,7 +328,7 @@ def main(argv=None):
         return
     if args.command == "trace":
         policy = None if args.policy is None else _load_policy(args.policy)
-        np.savez_compressed(args.out, **trace_episodes(args.scenario, args.episodes, args.seed, policy))
+        np.savez_compressed(args.out, **trace_episodes(args.scenario, args.episodes, args.seed, policy, args.tight_qp))
         return
     if args.command == "record":
         _, recorded = run_episodes(args.scenario, args.episodes, args.seed, record_steps=args.steps)
