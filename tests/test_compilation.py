@@ -44,16 +44,18 @@ def test_env_step_and_reset_compile_once_without_host_callbacks(name, period):
     assert host_callbacks(reset.lower(jax.random.split(key, batch))) == 0
 
 
-@pytest.mark.parametrize("algo", ["vdn", "ippo"])
+@pytest.mark.parametrize("algo", ["vdn", "ippo", "ippo-gru"])
 def test_a_training_chunk_compiles_once_without_host_callbacks(algo):
-    """What the driver's Python loop calls once per chunk (``trainer.run`` under jit)."""
+    """What the driver's Python loop calls once per chunk (``trainer.run`` under jit); recurrent PPO carries its
+    hidden state in the runner."""
     env = marbler_jax.make("simple_navigation", control_period=15)
     if algo == "vdn":
         trainer = vdn.make_train(env, vdn.VDNConfig(hidden=8, num_envs=2, batch_size=2, buffer_size=8,
                                                     train_steps=1, learning_starts=0, total_timesteps=10**6))
     else:
         trainer = ippo.make_train(env, ippo.IPPOConfig(hidden=8, num_envs=2, num_steps=8, update_epochs=1,
-                                                       num_minibatches=1, total_timesteps=10**6))
+                                                       num_minibatches=1, total_timesteps=10**6,
+                                                       cell="gru" if algo == "ippo-gru" else "none"))
     run = jax.jit(trainer.run, static_argnums=1)
     runner = jax.jit(trainer.init)(jax.random.PRNGKey(0))
     for _ in range(3):
