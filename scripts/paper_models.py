@@ -389,13 +389,16 @@ def tight_qp_lines(out: Path) -> list[str]:
              f"scripts/paper_models.py marbler --tight-qp --scenarios {' '.join(scenarios)}`, in .marbler-venv):", "",
              "| scenario | algorithm | (b) MARBLER, rps's QP | (b') MARBLER, tight QP | (b') − (b) [95 % CI] | "
              "collisions % (b) / (b') | out of bounds % (b) / (b') |", "|---|---|---|---|---|---|---|"]
+    unchanged = 0
     for scenario, algo, loose, tight in rows:
         mean, low, high = difference_ci(tight["reward"], loose["reward"], len(tight["reward"]) == len(loose["reward"]))
+        unchanged += low <= 0 <= high
         lines.append(f"| {scenario} | {algo} | {_cell(loose['reward'])} | {_cell(tight['reward'])} | "
                      f"{mean:+.2f} [{low:+.2f}, {high:+.2f}] | {_cell(loose['collisions'], 1)} / "
                      f"{_cell(tight['collisions'], 1)} | {_cell(loose['out_of_bounds'], 1)} / "
                      f"{_cell(tight['out_of_bounds'], 1)} |")
-    return lines
+    return lines + ["", f"The tight solve leaves the score unchanged (the CI of (b') − (b) contains 0) for {unchanged} of "
+                        f"{len(rows)} models."]
 
 
 def summary_line(out: Path) -> str:
