@@ -14,12 +14,13 @@ each over ``--episodes`` episodes, and written as one JSON file per model and lo
 ``table`` turns them into the Markdown table that RESULTS.md holds. marbler-jax plays the episodes from the
 very start states MARBLER's code plays with ``--seed`` (``starts``: MARBLER's robots' poses and task state,
 e.g. Material Transport's zone loads), so (a) and (b) are compared episode by episode and share every start's
-luck. Steps (each skips what is done):
+luck; (a) also runs from ``--fresh-episodes`` of marbler-jax's own start draws (``marbler-jax-fresh/``, its
+population mean). Steps (each skips what is done):
 
     python scripts/paper_models.py import                       # policies/ from ../shared/marbler
     python scripts/paper_models.py starts                       # starts/ in .marbler-venv (seconds)
     python scripts/paper_models.py marbler --workers 2           # (b) in .marbler-venv, ~1 episode/s a process
-    python scripts/paper_models.py evaluate                     # (a), (d) and robotarium: True
+    python scripts/paper_models.py evaluate                     # (a), (d), robotarium: True, fresh (a)
     python scripts/paper_models.py robotarium --episodes 30 --workers 2   # (e) in .rps-v2-venv
     python scripts/paper_models.py table --results-md RESULTS.md --readme README.md
 """
