@@ -73,7 +73,13 @@ def env_state(env, marbler_class: str, reset_poses, reset_state: dict, reset_age
     float ``dtype`` of its poses (float64 needs ``jax.enable_x64``)."""
     if marbler_class not in SCENARIOS:
         raise ValueError(f"unknown MARBLER scenario {marbler_class!r}; one of {sorted(SCENARIOS)}")
-    scenario = SCENARIOS[marbler_class][1](reset_state, reset_agents, dtype)
+    try:
+        scenario = SCENARIOS[marbler_class][1](reset_state, reset_agents, dtype)
+    except KeyError as missing:
+        raise ValueError(f"a {marbler_class} start needs {missing} (in reset_state or each of reset_agents); "
+                         "is it another scenario's start?") from None
+    if np.shape(reset_poses) != (3, env.num_agents):
+        raise ValueError(f"reset_poses must be [3, {env.num_agents}] (rps's layout), got {np.shape(reset_poses)}")
     return EnvState(poses=jnp.asarray(np.swapaxes(np.asarray(reset_poses), 0, 1), dtype), scenario=scenario,
                     step=jnp.int32(0), episode_return=jnp.asarray(0, dtype), collided=jnp.bool_(False),
                     out_of_bounds=jnp.bool_(False), cbf_multipliers=env.initial_multipliers(dtype))

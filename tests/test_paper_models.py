@@ -103,3 +103,16 @@ def test_episodes_begin_at_marbler_starts():
     values = greedy_episodes(env, None, 2, jax.random.PRNGKey(0), (obs, state))
     assert values["steps"][0] == 1 and values["material_left"][0] == 0
     assert values["steps"][1] > 1 and values["material_left"][1] > 0
+
+
+def test_a_start_of_another_scenario_is_one_clear_error():
+    import marbler_jax
+    from marbler_jax_rl.marbler_starts import env_state
+
+    env = marbler_jax.make("predator_capture_prey", protocol="marbler")
+    mt_start = {"zone1_load": 100, "zone2_load": 20, "messages": [0] * 4}
+    with pytest.raises(ValueError, match="a PredatorCapturePrey start needs 'prey_loc'"):
+        env_state(env, "PredatorCapturePrey", np.zeros((3, 4)), mt_start, [{"load": 0}] * 4)
+    with pytest.raises(ValueError, match=r"reset_poses must be \[3, 4\] \(rps's layout\), got \(4, 3\)"):
+        env_state(env, "PredatorCapturePrey", np.zeros((4, 3)), {"prey_loc": np.zeros((6, 2)).tolist(),
+                  "prey_sensed": [False] * 6, "prey_captured": [False] * 6}, [{}] * 4)
