@@ -779,7 +779,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the absolute metric evaluates each seed's best checkpoint over this many times "
                          "--test-episodes episodes")
     bm.add_argument("--devices", "--learner-devices", dest="devices", type=int, default=1,
-                    help="devices each cell is spread over (on a CPU, one per core: 2 on a 2-core CPU): "
+                    help="devices each cell is spread over (on a CPU, at most one per core): "
                          "value-based cells split each gradient step over them, PPO cells each rollout's envs and "
                          "each minibatch")
     bm.add_argument("--seed", type=int, default=0, help="base PRNG seed of every cell")
