@@ -72,11 +72,11 @@ SEED_BATCHING = {"vmap": lambda fn, xs: jax.vmap(fn)(xs), "map": jax.lax.map, "d
 
 def default_seed_batching(algo: str, platform: str | None = None) -> str:
     """How ``train`` maps the seeds when not told: ``"map"`` on a CPU for the algorithms that ask for it
-    (``Algorithm.map_seeds_on_cpu``: the value-based learners), ``"vmap"`` otherwise. On a CPU a value-based update is many small per-seed matmuls and normalisations
-    that run 1.1-1.3x faster one seed at a time than batched over seeds (and ``map`` keeps the
-    ``learning_starts`` branch a real branch, where ``vmap`` computes both sides); PPO's larger
-    minibatches gain from the batch (BENCHMARKS.md, *Training throughput*). ``platform``: the default
-    backend's (``jax.default_backend()``) unless given."""
+    (``Algorithm.map_seeds_on_cpu``: the value-based learners), ``"vmap"`` otherwise. On a CPU a value-based
+    update is many small per-seed matmuls and normalisations, which run faster one seed at a time than as
+    batched matmuls with per-seed weights (and ``map`` keeps the ``learning_starts`` branch a real branch,
+    where ``vmap`` computes both sides); PPO's larger minibatches gain from the batch (BENCHMARKS.md,
+    *Training throughput*). ``platform``: the default backend's (``jax.default_backend()``) unless given."""
     platform = platform or jax.default_backend()
     return "map" if platform == "cpu" and registry.get(algo).map_seeds_on_cpu else "vmap"
 

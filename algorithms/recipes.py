@@ -121,17 +121,14 @@ _VALUE = dict(hidden=32, cell="mingru", layer_norm=True, num_envs=256, buffer_si
               train_steps=32, target_update_interval=32, td_lambda=0.8, double_q=False, lr=1.5e-3,
               lr_decay=True, gamma=0.95, eps_finish=0.01, eps_decay_steps=1_000_000, learning_starts=0,
               last_action=True)
-# 128-unit PPO networks: with 64 units all five MAPPO seeds on Warehouse stay at a plateau of ~22 reward for
-# 20M steps, where all five 128-unit seeds pass 30 within 6M (BENCHMARKS.md, "Network width").
+# 128-unit PPO networks: 64-unit MAPPO plateaus on Warehouse (BENCHMARKS.md, "Network width").
 _PPO = dict(lr=1e-3, num_envs=64, num_steps=64, hidden=128, update_epochs=4, num_minibatches=4, ent_coef=0.01)
 
 # Env steps per seed on MARBLER's scenarios: 10M for QMIX and QMIX_NS, 20M for PPO (on-policy, so less
-# sample-efficient) and for VDN, whose sum of per-robot values still gains after 10M (Predator Capture Prey:
-# IQM 31.32 at 10M in results/pcp-vdn-10m, 32.27 at 20M in results/pcp-vdn-20m), and trains that scenario for
-# 30M: at 20M four of its five seeds still gained 0.26-0.55 reward in the last quarter and the best stayed
-# below the paper. The value-based algorithms train JaxRobotarium's scenarios for JaxRobotarium's own budgets
-# (its Q-learning configs), so those rows compare at equal samples, except Foraging (10M, see _FORAGING_WHY);
-# Simple Navigation is the quick check.
+# sample-efficient) and for VDN, whose test return still rises after 10M; 30M for VDN on Predator Capture Prey,
+# where it still rises after 20M (results/pcp-vdn-10m, results/pcp-vdn-20m). The value-based algorithms train
+# JaxRobotarium's scenarios for JaxRobotarium's own budgets (its Q-learning configs), so those rows compare at
+# equal samples, except Foraging (10M, see _FORAGING_WHY); Simple Navigation is the quick check.
 _VALUE_STEPS = _frozen(simple_navigation=2_000_000, discovery=5_000_000, foraging=10_000_000, rware=20_000_000)
 _VDN_STEPS = _frozen(**_VALUE_STEPS, predator_capture_prey=30_000_000)
 # PPO trains JaxRobotarium's scenarios for the same budgets, so those rows (no paper value) compare all five
@@ -153,8 +150,8 @@ _JAXROBOTARIUM_EPS_FINISH = 0.05     # the final epsilon of JaxRobotarium's Q-le
 _VALUE_HP = _frozen(foraging=_frozen(eps_decay_steps=_VALUE_STEPS["foraging"] // 2,
                                      eps_finish=_JAXROBOTARIUM_EPS_FINISH))
 _VALUE_WHY = _frozen(foraging=_FORAGING_WHY)
-# RWARE's longer exploration is QMIX's alone: VDN, whose seeds all deliver with the shared schedule, scores less
-# with it (IQM 2.56 against 6.37 over five seeds, results/rware-vdn-eps5).
+# RWARE's longer exploration is QMIX's alone: VDN's seeds all deliver with the shared schedule and score less
+# with the longer one (results/rware-vdn-eps5).
 _RWARE_QMIX_WHY = ("RWARE pays only for a delivered shelf: with epsilon at 0.01 after 1M steps three of QMIX's five "
                    "seeds stay at 0 to 0.02 reward for 20M steps (the other two 2.86 and 2.88, "
                    "results/rware-qmix-eps1m), exploring for the first 5M steps down to 0.05 every seed delivers "
