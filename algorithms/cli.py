@@ -818,7 +818,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="also rewrite the reward summary of FILE (the project's README.md) between its markers")
     rp.add_argument("--paper-models", default=None, metavar="DIR",
                     help="show beside each cell the score of MARBLER's own paper model, from the `evaluate --json` "
-                         "files <scenario>-<algo>.json in DIR (results/paper-models/marbler-jax: MARBLER's protocol)")
+                         "files <scenario>-<algo>.json in DIR (results/paper-models/marbler-jax-fresh: MARBLER's "
+                         "protocol)")
     rp.add_argument("--no-progress", action="store_true", help="no progress bar")
     rp.set_defaults(func=_report)
     qs = sub.add_parser("quickstart", help="the main job: train, evaluate, plot and render (a few minutes)")

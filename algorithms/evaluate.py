@@ -21,7 +21,7 @@ import numpy as np
 
 from marbler_jax.control_loop import ROBOTS_CONTROL_PERIOD
 from marbler_jax.deploy.bundle import deployment_settings
-from marbler_jax.rollout import batched_rollout, first_episode_metrics, make_rollout
+from marbler_jax.rollout import batched_rollout, first_episode_metrics
 from . import registry
 from .run import DEFAULT_CHECKPOINT, Run
 
@@ -66,8 +66,6 @@ def first_episodes(env, traj) -> dict[str, np.ndarray]:
 def greedy_episodes(env, policy, episodes: int, key, start=None) -> dict[str, np.ndarray]:
     """``episodes`` greedy episodes (one per batched env) -> per-episode metric arrays; ``start``: ``(obs,
     state)`` of the ``episodes`` envs to begin from instead of fresh resets."""
-    if start is None:
-        return first_episodes(env, make_rollout(env, episodes, env.max_steps, policy)(key)[1])
     rollout = jax.jit(lambda key, start: batched_rollout(env, key, episodes, env.max_steps, policy, start))
     return first_episodes(env, rollout(key, start)[1])
 

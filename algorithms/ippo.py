@@ -174,10 +174,6 @@ def make_train(env, cfg: IPPOConfig):
     def forward(params, obs):
         return apply_agents(network, params, policy_inputs(cfg, obs), critic_inputs(cfg, obs), shared=cfg.shared)
 
-    def act(params, hidden, obs, reset):
-        """Recurrent actors: ``(hidden [E, N, H], logits [E, N, A])`` from ``obs [E, N, D]``, ``reset [E]``."""
-        return recurrent_act(network, cfg, params, hidden, obs, reset)
-
     def value(params, obs):
         return apply_agents(network, params, critic_inputs(cfg, obs), shared=cfg.shared,
                             method=RecurrentActorCritic.value)
@@ -203,7 +199,7 @@ def make_train(env, cfg: IPPOConfig):
         k_act, k_env = jax.random.split(key)
         if cfg.recurrent:
             hidden, reset = memory
-            hidden, logits = act(params, hidden, obs, reset)
+            hidden, logits = recurrent_act(network, cfg, params, hidden, obs, reset)   # [E, N, H], [E, N, A]
             value_now = value(params, obs)
         else:
             logits, value_now = forward(params, obs)                      # [E, N, A], [E, N]

@@ -90,9 +90,8 @@ def q_values(network: QAgent, params, obs):
 def make_train(env, cfg: PQNConfig):
     cfg.validate()
     network = q_network(env, cfg)
-    steps_per_update = cfg.num_envs * cfg.num_steps
-    num_updates = max(1, cfg.total_timesteps // steps_per_update)
-    batch = cfg.num_envs * cfg.num_steps
+    batch = cfg.num_envs * cfg.num_steps            # env steps per update, each one sample
+    num_updates = max(1, cfg.total_timesteps // batch)
     lr = (optax.linear_schedule(cfg.lr, 0.0, num_updates * cfg.num_epochs * cfg.num_minibatches)
           if cfg.lr_decay else cfg.lr)
     tx = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(lr))
@@ -161,12 +160,12 @@ def make_train(env, cfg: PQNConfig):
             samples = tuple(x.reshape((batch,) + x.shape[2:]) for x in (traj["obs"], traj["actions"], targets))
             params, opt_state, loss = learn(runner["params"], runner["opt_state"], samples, k_learn)
             runner = dict(params=params, opt_state=opt_state, obs=obs, env_state=state, key=key,
-                          steps=runner["steps"] + steps_per_update)
+                          steps=runner["steps"] + batch)
             return runner, dict(rollout_metrics(traj["done"], traj["info"]), loss=loss)
 
         return jax.lax.scan(update, runner, None, length=n)
 
-    return trainer(init, run, num_updates, steps_per_update)
+    return trainer(init, run, num_updates, batch)
 
 
 def greedy_policy(env, cfg: PQNConfig, params):

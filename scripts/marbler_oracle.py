@@ -191,9 +191,16 @@ def episode_starts(scenario: str, episodes: int, seed: int) -> list[dict]:
     for _ in range(episodes):
         with contextlib.redirect_stdout(io.StringIO()):
             env.reset()
-        starts.append({"reset_poses": np.asarray(env.agent_poses, float).tolist(), "reset_state": _numeric_state(env),
-                       "reset_agents": [_numeric_state(a) for a in getattr(env, "agents", [])]})
+        start = current_start(env)
+        starts.append(dict(start, reset_poses=start["reset_poses"].tolist()))
     return starts
+
+
+def current_start(env) -> dict:
+    """The start MARBLER's scenario ``env`` holds after ``reset()``: ``reset_poses [3, N]`` (a copy),
+    ``reset_state`` and ``reset_agents`` (the scenario's and each agent's numeric attributes)."""
+    return {"reset_poses": np.array(env.agent_poses, dtype=float, copy=True), "reset_state": _numeric_state(env),
+            "reset_agents": [_numeric_state(a) for a in getattr(env, "agents", [])]}
 
 
 def _record_ticks() -> None:
@@ -247,9 +254,9 @@ def trace_episodes(scenario: str, episodes: int, seed: int, policy=None, tight_q
         with contextlib.redirect_stdout(quiet):
             obs = np.asarray(env.reset(), np.float32)
         tag = f"e{e}"
-        reset_poses = np.array(env.agent_poses, dtype=float, copy=True)
-        episode = {"tag": tag, "reset_state": _numeric_state(env),
-                   "reset_agents": [_numeric_state(a) for a in getattr(env, "agents", [])], "step_info": []}
+        start = current_start(env)
+        reset_poses = start.pop("reset_poses")
+        episode = {"tag": tag, **start, "step_info": []}
         index, rows = [len(_TICKS)], {"actions": [], "obs": [], "rewards": [], "dones": [], "poses": []}
         hidden = None if policy is None else policy.initial_hidden()
         for _ in range(int(config["max_episode_steps"]) + 1):

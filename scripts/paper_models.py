@@ -229,8 +229,7 @@ def difference_ci(a, b, paired: bool = False) -> tuple[float, float, float]:
     ``paired`` (the same starts, in order), else Welch's."""
     a, b = np.asarray(a, float), np.asarray(b, float)
     if paired:
-        diff = a - b
-        mean, half = diff.mean(), 1.96 * diff.std(ddof=1) / np.sqrt(len(diff))
+        mean, half = mean_ci(a - b)
     else:
         mean = a.mean() - b.mean()
         half = 1.96 * np.sqrt(a.var(ddof=1) / len(a) + b.var(ddof=1) / len(b))
